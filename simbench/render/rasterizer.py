@@ -1,0 +1,348 @@
+"""One-pass OpenGL rasteriser: linear radiance, integer ids and camera depth together.
+
+Why hand-written rather than pyrender's renderer (whose EGL/OSMesa platform we do
+reuse, see :mod:`simbench.render.gl_context`): for every frame of every camera the
+bench needs three images of the same view — linear float radiance (so that the
+sensor model adds shot noise, white balance and gamma itself), an exact integer id
+map (marker id, shirt patch id, background) and metric depth. pyrender draws these in
+separate passes, hard-codes 4x MSAA, reads back 8-bit colour only, and sets every
+uniform by name lookup per primitive per frame; measured here that caps it at about
+12-17 fps for one 640x480 camera. This class keeps all scene geometry in two vertex
+buffers (static set, and the moving body re-posed on the CPU with numpy, a few
+thousand vertices), draws them in two calls into three colour attachments (multiple
+render targets) and reads back only what was asked for.
+
+Conventions
+-----------
+* Cameras follow OpenCV: x right, y down, z forward; pixel centres at integers.
+  ``render`` takes the world-to-camera ``R, t`` and a pinhole ``K`` (no distortion:
+  distortion is applied afterwards by remapping, see :mod:`simbench.render.camera`).
+* Row 0 of every returned image is the top row (v = 0), as OpenCV.
+* Radiance is linear, in arbitrary radiometric units (irradiance x albedo / pi);
+  the sensor model scales it to electrons.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simbench.render.gl_context import GLContext
+
+from OpenGL import GL as gl  # noqa: E402  (after the platform is configured)
+
+MAX_LIGHTS = 8
+
+# Lighting is evaluated per vertex (Gouraud): on llvmpipe the fragment stage dominates,
+# and per-fragment lighting of a 640x480 view costs ~4x the whole rest of the frame.
+# Meshes are tessellated finely enough (floor and walls are grids) that the
+# interpolation error is far below the sensor noise.
+_VERT = """
+#version 330 core
+layout(location = 0) in vec3 a_pos;
+layout(location = 1) in vec3 a_nrm;
+layout(location = 2) in vec3 a_alb;
+layout(location = 3) in int a_id;
+layout(location = 4) in float a_retro;
+uniform mat4 u_world_to_cam;   // OpenCV camera frame
+uniform mat4 u_proj;           // OpenCV camera frame -> clip
+uniform int u_n_lights;
+uniform int u_light_kind[%(n)d];      // 0 directional, 1 point
+uniform vec3 u_light_vec[%(n)d];      // direction the light travels (dir) or position (point)
+uniform vec3 u_light_rgb[%(n)d];      // irradiance at normal incidence (dir) or at 1 m (point)
+uniform vec3 u_ambient;
+uniform vec3 u_cam_pos;
+uniform vec3 u_ring_rgb;              // coaxial ring light irradiance at 1 m (IR mode)
+uniform float u_specular;
+out vec3 v_rad;
+flat out int v_id;
+out float v_z;
+void main() {
+    vec4 pc = u_world_to_cam * vec4(a_pos, 1.0);
+    vec3 n = normalize(a_nrm);
+    vec3 dc = u_cam_pos - a_pos;
+    float dc2 = max(dot(dc, dc), 1e-4);
+    vec3 vdir = dc * inversesqrt(dc2);
+    if (dot(n, vdir) < 0.0) n = -n;   // two-sided surfaces (planes, props)
+    vec3 e = u_ambient;
+    vec3 spec = vec3(0.0);
+    for (int i = 0; i < u_n_lights; ++i) {
+        vec3 l;
+        vec3 irr = u_light_rgb[i];
+        if (u_light_kind[i] == 0) {
+            l = -normalize(u_light_vec[i]);
+        } else {
+            vec3 d = u_light_vec[i] - a_pos;
+            float r2 = max(dot(d, d), 1e-4);
+            l = d * inversesqrt(r2);
+            irr /= r2;
+        }
+        float ndl = max(dot(n, l), 0.0);
+        e += irr * ndl;
+        vec3 h = normalize(l + vdir);
+        spec += irr * (ndl > 0.0 ? pow(max(dot(n, h), 0.0), 32.0) : 0.0);
+    }
+    v_rad = a_alb * e * 0.318309886 + u_specular * spec * 0.05;
+    // Retro-reflective material returns light towards its source: with a ring light
+    // around the lens the whole sphere appears uniformly bright (glass-bead tape).
+    v_rad += a_retro * u_ring_rgb / dc2;
+    v_id = a_id;
+    v_z = pc.z;
+    gl_Position = u_proj * pc;
+}
+""" % {"n": MAX_LIGHTS}
+
+_FRAG = """
+#version 330 core
+in vec3 v_rad;
+flat in int v_id;
+in float v_z;
+layout(location = 0) out vec4 o_rad;
+layout(location = 1) out int o_id;
+layout(location = 2) out float o_depth;
+void main() {
+    o_rad = vec4(v_rad, 1.0);
+    o_id = v_id;
+    o_depth = v_z;
+}
+"""
+
+
+@dataclass
+class Light:
+    """A light in world coordinates.
+
+    kind : ``"directional"`` or ``"point"``
+    vector : (3,) travel direction (directional) or position in metres (point)
+    rgb : (3,) linear irradiance at normal incidence (directional) or at 1 m (point)
+    """
+
+    kind: str
+    vector: np.ndarray
+    rgb: np.ndarray
+
+
+@dataclass
+class GeometryBuffers:
+    """Indexed vertex arrays for one draw call.
+
+    positions, normals : (V, 3) float32, world frame (static) or updated per frame
+    albedo : (V, 3) float32 linear RGB in 0..1
+    ids : (V,) int32 (0 is background; see :mod:`simbench.render.ids`)
+    retro : (V,) float32 retro-reflective gain (0 for ordinary surfaces)
+    faces : (T, 3) uint32 vertex indices
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    albedo: np.ndarray
+    ids: np.ndarray
+    retro: np.ndarray
+    faces: np.ndarray
+
+
+def _compile(src: str, kind) -> int:
+    sh = gl.glCreateShader(kind)
+    gl.glShaderSource(sh, src)
+    gl.glCompileShader(sh)
+    if not gl.glGetShaderiv(sh, gl.GL_COMPILE_STATUS):
+        raise RuntimeError(gl.glGetShaderInfoLog(sh).decode())
+    return sh
+
+
+class _Mesh:
+    def __init__(self, buf: GeometryBuffers, dynamic: bool) -> None:
+        self.n = len(buf.positions)
+        self.n_idx = int(np.asarray(buf.faces).size)
+        self.vao = gl.glGenVertexArrays(1)
+        gl.glBindVertexArray(self.vao)
+        self.ebo = gl.glGenBuffers(1)
+        gl.glBindBuffer(gl.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
+        gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, np.ascontiguousarray(buf.faces, np.uint32).ravel(), gl.GL_STATIC_DRAW)
+        usage = gl.GL_DYNAMIC_DRAW if dynamic else gl.GL_STATIC_DRAW
+        self.vbo_pos = gl.glGenBuffers(1)
+        self.vbo_nrm = gl.glGenBuffers(1)
+        for loc, vbo, arr in ((0, self.vbo_pos, buf.positions), (1, self.vbo_nrm, buf.normals)):
+            gl.glBindBuffer(gl.GL_ARRAY_BUFFER, vbo)
+            gl.glBufferData(gl.GL_ARRAY_BUFFER, np.ascontiguousarray(arr, np.float32), usage)
+            gl.glEnableVertexAttribArray(loc)
+            gl.glVertexAttribPointer(loc, 3, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
+        self._static = []
+        for loc, arr, comps, ityp in (
+            (2, np.ascontiguousarray(buf.albedo, np.float32), 3, None),
+            (3, np.ascontiguousarray(buf.ids, np.int32), 1, gl.GL_INT),
+            (4, np.ascontiguousarray(buf.retro, np.float32), 1, None),
+        ):
+            vbo = gl.glGenBuffers(1)
+            self._static.append(vbo)
+            gl.glBindBuffer(gl.GL_ARRAY_BUFFER, vbo)
+            gl.glBufferData(gl.GL_ARRAY_BUFFER, arr, gl.GL_STATIC_DRAW)
+            gl.glEnableVertexAttribArray(loc)
+            if ityp is None:
+                gl.glVertexAttribPointer(loc, comps, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
+            else:
+                gl.glVertexAttribIPointer(loc, comps, ityp, 0, None)
+        gl.glBindVertexArray(0)
+
+    def update(self, positions: np.ndarray, normals: np.ndarray) -> None:
+        if len(positions) != self.n:
+            raise ValueError(f"dynamic geometry has {self.n} vertices, got {len(positions)}")
+        gl.glBindBuffer(gl.GL_ARRAY_BUFFER, self.vbo_pos)
+        gl.glBufferSubData(gl.GL_ARRAY_BUFFER, 0, np.ascontiguousarray(positions, np.float32))
+        gl.glBindBuffer(gl.GL_ARRAY_BUFFER, self.vbo_nrm)
+        gl.glBufferSubData(gl.GL_ARRAY_BUFFER, 0, np.ascontiguousarray(normals, np.float32))
+
+    def draw(self) -> None:
+        if self.n_idx:
+            gl.glBindVertexArray(self.vao)
+            gl.glDrawElements(gl.GL_TRIANGLES, self.n_idx, gl.GL_UNSIGNED_INT, None)
+
+
+def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar: float) -> np.ndarray:
+    """OpenCV camera frame to GL clip space, such that window pixel row v is OpenCV's v.
+
+    ``u_gl = fx x/z + cx + 0.5`` (GL pixel centres are at +0.5); y is *not* flipped, so
+    rows come out top-first and triangles' winding is mirrored (handled with glFrontFace).
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    P = np.zeros((4, 4))
+    P[0, 0] = 2 * fx / width
+    P[0, 1] = 2 * K[0, 1] / width
+    P[0, 2] = 2 * (cx + 0.5) / width - 1
+    P[1, 1] = 2 * fy / height
+    P[1, 2] = 2 * (cy + 0.5) / height - 1
+    P[2, 2] = (zfar + znear) / (zfar - znear)
+    P[2, 3] = -2 * zfar * znear / (zfar - znear)
+    P[3, 2] = 1.0
+    return P
+
+
+class Rasterizer:
+    """Renders static and dynamic triangle geometry into (radiance, ids, depth)."""
+
+    def __init__(self, width: int, height: int, context: GLContext | None = None) -> None:
+        self.width, self.height = int(width), int(height)
+        self.context = context or GLContext(self.width, self.height)
+        self.context.make_current()
+        self._prog = gl.glCreateProgram()
+        for src, kind in ((_VERT, gl.GL_VERTEX_SHADER), (_FRAG, gl.GL_FRAGMENT_SHADER)):
+            gl.glAttachShader(self._prog, _compile(src, kind))
+        gl.glLinkProgram(self._prog)
+        if not gl.glGetProgramiv(self._prog, gl.GL_LINK_STATUS):
+            raise RuntimeError(gl.glGetProgramInfoLog(self._prog).decode())
+        self._loc = {
+            name: gl.glGetUniformLocation(self._prog, name)
+            for name in ("u_world_to_cam", "u_proj", "u_n_lights", "u_light_kind", "u_light_vec",
+                         "u_light_rgb", "u_ambient", "u_cam_pos", "u_ring_rgb", "u_specular")
+        }
+        self._fbo = gl.glGenFramebuffers(1)
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._fbo)
+        self._rb = gl.glGenRenderbuffers(4)
+        formats = (gl.GL_RGBA32F, gl.GL_R32I, gl.GL_R32F, gl.GL_DEPTH_COMPONENT24)
+        attach = (gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2, gl.GL_DEPTH_ATTACHMENT)
+        for rb, fmt, att in zip(self._rb, formats, attach):
+            gl.glBindRenderbuffer(gl.GL_RENDERBUFFER, rb)
+            gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, fmt, self.width, self.height)
+            gl.glFramebufferRenderbuffer(gl.GL_FRAMEBUFFER, att, gl.GL_RENDERBUFFER, rb)
+        status = gl.glCheckFramebufferStatus(gl.GL_FRAMEBUFFER)
+        if status != gl.GL_FRAMEBUFFER_COMPLETE:
+            raise RuntimeError(f"incomplete framebuffer (status {status:#x})")
+        gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
+        self._static: _Mesh | None = None
+        self._dynamic: _Mesh | None = None
+
+    # ---------------------------------------------------------------- geometry
+    def set_static(self, buf: GeometryBuffers) -> None:
+        self.context.make_current()
+        self._static = _Mesh(buf, dynamic=False)
+
+    def set_dynamic(self, buf: GeometryBuffers) -> None:
+        """Topology and per-vertex attributes of the moving geometry (set once)."""
+        self.context.make_current()
+        self._dynamic = _Mesh(buf, dynamic=True)
+
+    def update_dynamic(self, positions: np.ndarray, normals: np.ndarray) -> None:
+        """New world positions/normals ``(V, 3)`` of the moving geometry."""
+        self.context.make_current()
+        if self._dynamic is None:
+            raise RuntimeError("call set_dynamic before update_dynamic")
+        self._dynamic.update(positions, normals)
+
+    # ---------------------------------------------------------------- render
+    def render(
+        self,
+        K: np.ndarray,
+        R: np.ndarray,
+        t: np.ndarray,
+        lights: list[Light],
+        ambient_rgb: np.ndarray,
+        ring_rgb: np.ndarray | None = None,
+        outputs: tuple[str, ...] = ("radiance", "ids", "depth"),
+        znear: float = 0.05,
+        zfar: float = 50.0,
+        specular: float = 1.0,
+    ) -> dict[str, np.ndarray]:
+        """Render one view.
+
+        Returns a dict with the requested ``outputs``: ``radiance`` (H, W, 3) float32
+        linear, ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
+        (0 where nothing was drawn).
+        """
+        if len(lights) > MAX_LIGHTS:
+            raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
+        self.context.make_current()
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._fbo)
+        gl.glViewport(0, 0, self.width, self.height)
+        gl.glEnable(gl.GL_DEPTH_TEST)
+        gl.glDepthFunc(gl.GL_LESS)
+        gl.glDisable(gl.GL_MULTISAMPLE)
+        gl.glDisable(gl.GL_CULL_FACE)
+        gl.glClearBufferfv(gl.GL_COLOR, 0, np.zeros(4, np.float32))
+        gl.glClearBufferiv(gl.GL_COLOR, 1, np.zeros(4, np.int32))
+        gl.glClearBufferfv(gl.GL_COLOR, 2, np.zeros(4, np.float32))
+        gl.glClear(gl.GL_DEPTH_BUFFER_BIT)
+
+        W2C = np.eye(4)
+        W2C[:3, :3] = R
+        W2C[:3, 3] = t
+        P = projection_from_K(np.asarray(K, float), self.width, self.height, znear, zfar)
+        cam_pos = -np.asarray(R).T @ np.asarray(t)
+        gl.glUseProgram(self._prog)
+        loc = self._loc
+        gl.glUniformMatrix4fv(loc["u_world_to_cam"], 1, gl.GL_TRUE, W2C.astype(np.float32))
+        gl.glUniformMatrix4fv(loc["u_proj"], 1, gl.GL_TRUE, P.astype(np.float32))
+        n = len(lights)
+        kinds = np.zeros(MAX_LIGHTS, np.int32)
+        vecs = np.zeros((MAX_LIGHTS, 3), np.float32)
+        rgbs = np.zeros((MAX_LIGHTS, 3), np.float32)
+        for i, light in enumerate(lights):
+            kinds[i] = 0 if light.kind == "directional" else 1
+            vecs[i] = light.vector
+            rgbs[i] = light.rgb
+        gl.glUniform1i(loc["u_n_lights"], n)
+        gl.glUniform1iv(loc["u_light_kind"], MAX_LIGHTS, kinds)
+        gl.glUniform3fv(loc["u_light_vec"], MAX_LIGHTS, vecs)
+        gl.glUniform3fv(loc["u_light_rgb"], MAX_LIGHTS, rgbs)
+        gl.glUniform3fv(loc["u_ambient"], 1, np.asarray(ambient_rgb, np.float32))
+        gl.glUniform3fv(loc["u_cam_pos"], 1, cam_pos.astype(np.float32))
+        gl.glUniform3fv(loc["u_ring_rgb"], 1, np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32))
+        gl.glUniform1f(loc["u_specular"], float(specular))
+        for mesh in (self._static, self._dynamic):
+            if mesh is not None:
+                mesh.draw()
+        out: dict[str, np.ndarray] = {}
+        H, W = self.height, self.width
+        if "radiance" in outputs:
+            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
+            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGB, gl.GL_FLOAT)
+            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 3)
+        if "ids" in outputs:
+            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT1)
+            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED_INTEGER, gl.GL_INT)
+            out["ids"] = np.frombuffer(buf, np.int32).reshape(H, W)
+        if "depth" in outputs:
+            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT2)
+            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
+            out["depth"] = np.frombuffer(buf, np.float32).reshape(H, W)
+        return out

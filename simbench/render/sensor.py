@@ -1,0 +1,92 @@
+"""The webcam's sensor and image pipeline: light in, 8-bit frame out.
+
+Order of operations (per pixel, per channel), as in a real camera:
+mean radiance over the shutter -> electrons (sensitivity x exposure time) ->
+photon shot noise (Poisson, Gaussian approximation with variance = electrons) and
+read noise (Gaussian, e-) -> clip at full well -> gain -> white balance (per-channel
+gains; fixed for an illuminant, or auto grey-world with a time constant) ->
+gamma (sRGB OETF) -> 8-bit quantisation -> optional JPEG.
+In ``ir`` mode the sensor is monochrome (the three channels are equal).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from simbench.render.color import cct_to_rgb
+from simbench.scenario import SensorConfig
+
+_LUT_BITS = 14
+
+
+def _gamma_lut(kind: str) -> np.ndarray:
+    x = np.arange(2**_LUT_BITS, dtype=np.float64) / (2**_LUT_BITS - 1)
+    if kind == "srgb":
+        y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    else:
+        y = x
+    return np.round(y * 255.0).astype(np.uint8)
+
+
+class WhiteBalance:
+    """Camera white-balance gains ``(3,)`` (green = 1), fixed or auto (grey world)."""
+
+    def __init__(self, cfg: SensorConfig, fps: float) -> None:
+        self.mode = cfg.white_balance
+        white = cct_to_rgb(cfg.wb_cct_k)
+        self.fixed_gains = (white[1] / white).astype(np.float32)
+        self.alpha = float(1.0 - np.exp(-1.0 / (fps * cfg.wb_adapt_s)))
+        self.gains = self.fixed_gains.copy()
+        self._started = False
+
+    def update(self, linear_rgb: np.ndarray) -> np.ndarray:
+        """Feed a linear frame (before gains); returns the gains to apply to it."""
+        if self.mode == "fixed":
+            return self.gains
+        means = linear_rgb.reshape(-1, 3)[::7].mean(axis=0) + 1e-6
+        target = (means[1] / means).astype(np.float32)
+        if not self._started:
+            self.gains = target
+            self._started = True
+        else:
+            self.gains = (1 - self.alpha) * self.gains + self.alpha * target
+        return self.gains
+
+
+class Sensor:
+    """Turns time-averaged radiance into the camera's 8-bit frame."""
+
+    def __init__(self, cfg: SensorConfig, fps: float) -> None:
+        self.cfg = cfg
+        self.scale = np.float32(cfg.electrons_per_unit * cfg.exposure_ms * 1e-3)
+        self.lut = _gamma_lut(cfg.gamma)
+        self.fps = fps
+
+    def electrons(self, radiance: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        """Mean radiance ``(H, W, 3)`` -> noisy electron counts ``(H, W, C)`` float32."""
+        cfg = self.cfg
+        if cfg.mode == "ir":
+            radiance = radiance.mean(axis=2, keepdims=True)
+        e = radiance * self.scale
+        if rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0):
+            var = (e if cfg.shot_noise else np.float32(0)) + np.float32(cfg.read_noise_e**2)
+            noise = rng.standard_normal(e.shape, dtype=np.float32)
+            e = e + noise * np.sqrt(np.maximum(var, 0, dtype=np.float32))
+        np.clip(e, 0, cfg.full_well_e, out=e)
+        return e
+
+    def to_frame(self, electrons: np.ndarray, wb: WhiteBalance | None) -> np.ndarray:
+        """Electrons ``(H, W, C)`` -> uint8 ``(H, W, 3)`` (RGB order)."""
+        cfg = self.cfg
+        lin = electrons * np.float32(cfg.gain / cfg.full_well_e)
+        if lin.shape[2] == 3 and wb is not None:
+            lin = lin * wb.update(lin)
+        idx = np.clip(lin * np.float32(2**_LUT_BITS - 1) + np.float32(0.5), 0, 2**_LUT_BITS - 1).astype(np.uint16)
+        frame = self.lut[idx]
+        if frame.shape[2] == 1:
+            frame = np.repeat(frame, 3, axis=2)
+        if cfg.jpeg_quality > 0:
+            ok, enc = cv2.imencode(".jpg", frame[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, cfg.jpeg_quality])
+            frame = cv2.imdecode(enc, cv2.IMREAD_COLOR)[..., ::-1]
+        return np.ascontiguousarray(frame)

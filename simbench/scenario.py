@@ -1,0 +1,343 @@
+"""Scenario files: TOML validated with pydantic.
+
+A scenario says everything a run needs: the body, what it wears (markers or the
+colour shirt), the motion, cameras and their sensor, lighting, props, duration,
+seed, and how the capture pipeline is configured. ``load_scenario`` turns any
+validation problem into one :class:`~simbench.errors.ScenarioError` naming the file,
+the field, the value and what is allowed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tomllib
+from pathlib import Path
+from typing import Annotated, Literal, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from simbench.errors import ScenarioError
+
+Vec3 = tuple[float, float, float]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BodyConfig(_Model):
+    height_m: float = Field(1.75, ge=1.2, le=2.2, description="standing height")
+    proportions: dict[str, float] = Field(default_factory=dict, description="overrides of anthropometric fractions of height")
+
+
+class SubjectConfig(_Model):
+    markers: Literal["plugin_gait_full", "sparse_joints", "upper_body", "none"] = "plugin_gait_full"
+    shirt: bool = False
+    suit_rgb: Vec3 = Field((0.04, 0.04, 0.05), description="linear albedo of the suit/clothes")
+    skin_rgb: Vec3 = (0.55, 0.38, 0.30)
+
+
+class MotionConfig(_Model):
+    clip: str = Field("wave_slow", description="procedural clip name, or 'bvh' to load `bvh`")
+    bvh: str | None = Field(None, description="BVH file (relative to the scenario file)")
+    start_s: float = Field(0.0, ge=0.0, description="offset into the clip")
+    speed: float = Field(1.0, gt=0.0, le=10.0)
+
+    @model_validator(mode="after")
+    def _bvh_needs_path(self):
+        if self.clip == "bvh" and not self.bvh:
+            raise ValueError("clip = 'bvh' needs `bvh = \"path/to/file.bvh\"`")
+        return self
+
+
+class SensorConfig(_Model):
+    """The webcam's sensor and image processing (shared by all cameras)."""
+
+    mode: Literal["visible", "ir"] = "visible"
+    exposure_ms: float = Field(8.0, gt=0.0, le=200.0, description="shutter open time; must fit in 1/fps")
+    gain: float = Field(1.0, gt=0.0, le=64.0)
+    full_well_e: float = Field(8000.0, gt=100.0)
+    read_noise_e: float = Field(3.0, ge=0.0)
+    shot_noise: bool = True
+    white_balance: Literal["fixed", "auto"] = "fixed"
+    wb_cct_k: float = Field(5000.0, ge=1667.0, le=25000.0, description="illuminant the fixed white balance is set for")
+    wb_adapt_s: float = Field(1.0, gt=0.0, description="time constant of auto white balance")
+    gamma: Literal["srgb", "linear"] = "srgb"
+    jpeg_quality: int = Field(0, ge=0, le=100, description="0 = no JPEG compression")
+    motion_blur: bool = True
+    blur_step_px: float = Field(0.75, gt=0.0, description="max image motion between shutter sub-frames")
+    max_subframes: int = Field(24, ge=1, le=128)
+    antialias: int = Field(2, ge=1, le=4, description="supersampling factor per axis")
+    psf_sigma_px: float = Field(0.4, ge=0.0, le=5.0, description="Gaussian optics blur")
+    ring_light: float = Field(6.0, ge=0.0, description="IR ring light strength")
+    electrons_per_unit: float = Field(4.0e5, gt=0.0, description="sensor sensitivity: e- per radiance unit per second")
+
+
+class CameraConfig(_Model):
+    name: str
+    position: Vec3
+    look_at: Vec3 = (0.0, 0.0, 1.0)
+    up: Vec3 = (0.0, 0.0, 1.0)
+    width: int = Field(640, ge=16, le=4096)
+    height: int = Field(480, ge=16, le=4096)
+    hfov_deg: float | None = Field(None, gt=5.0, lt=170.0)
+    K: tuple[Vec3, Vec3, Vec3] | None = None
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _one_intrinsics(self):
+        if self.hfov_deg is None and self.K is None:
+            object.__setattr__(self, "hfov_deg", 60.0)
+        if self.hfov_deg is not None and self.K is not None:
+            raise ValueError("give either hfov_deg or K, not both")
+        if np.linalg.norm(np.subtract(self.look_at, self.position)) < 1e-6:
+            raise ValueError("look_at must differ from position")
+        return self
+
+
+class RigConfig(_Model):
+    """Generates ``count`` cameras on a circle around ``look_at``."""
+
+    count: int = Field(4, ge=1, le=32)
+    radius_m: float = Field(3.5, gt=0.3)
+    height_m: float = Field(2.0)
+    look_at: Vec3 = (0.0, 0.0, 1.0)
+    start_deg: float = Field(30.0, description="azimuth of the first camera (0 = in front, +X)")
+    span_deg: float = Field(360.0, gt=0.0, le=360.0)
+    hfov_deg: float = Field(60.0, gt=5.0, lt=170.0)
+    width: int = 640
+    height: int = 480
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class LightConfig(_Model):
+    name: str
+    kind: Literal["point", "directional"] = "point"
+    position: Vec3 | None = None
+    direction: Vec3 | None = None
+    cct_k: float = Field(4000.0, ge=1667.0, le=25000.0)
+    tint: float = Field(0.0, ge=-5.0, le=5.0)
+    intensity: float = Field(1.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _geometry(self):
+        if self.kind == "point" and self.position is None:
+            raise ValueError("a point light needs `position`")
+        if self.kind == "directional" and self.direction is None:
+            raise ValueError("a directional light needs `direction`")
+        return self
+
+
+class LightEventConfig(_Model):
+    t_s: float = Field(ge=0.0)
+    light: str
+    intensity: float = Field(ge=0.0, description="new intensity (0 = switched off)")
+
+
+class LightingConfig(_Model):
+    preset: Literal["office_fluorescent", "tungsten_lamp", "daylight_outdoor", "dim_gym", "mixed", "custom"] = "office_fluorescent"
+    scale: float = Field(1.0, gt=0.0, description="multiplies every light (brighter/dimmer scene)")
+    lights: tuple[LightConfig, ...] = ()
+    events: tuple[LightEventConfig, ...] = ()
+
+    @model_validator(mode="after")
+    def _custom_needs_lights(self):
+        if self.preset == "custom" and not self.lights:
+            raise ValueError("preset 'custom' needs at least one [[lighting.lights]] entry")
+        return self
+
+
+class SetConfig(_Model):
+    floor: bool = True
+    walls: bool = True
+    room_size_m: float = Field(8.0, gt=2.0)
+    floor_rgb: Vec3 = (0.35, 0.33, 0.30)
+    wall_rgb: Vec3 = (0.55, 0.55, 0.52)
+    clutter: int = Field(0, ge=0, le=50, description="number of coloured boxes around the room")
+
+
+class BallConfig(_Model):
+    kind: Literal["ball"] = "ball"
+    name: str = "ball"
+    radius_m: float = Field(0.11, gt=0.0)
+    position: Vec3 = (2.0, -0.3, 1.5)
+    velocity: Vec3 = (-4.0, 0.3, 1.5)
+    rgb: Vec3 = (0.8, 0.35, 0.05)
+
+
+class BarrierConfig(_Model):
+    kind: Literal["barrier"] = "barrier"
+    name: str = "barrier"
+    size_m: Vec3 = Field((0.05, 1.0, 1.2), description="thickness (x), width (y), height (z)")
+    position: Vec3 = (1.2, 0.0, 0.6)
+    yaw_deg: float = 0.0
+    rgb: Vec3 = (0.25, 0.3, 0.5)
+
+
+class MovingConfig(_Model):
+    kind: Literal["moving"] = "moving"
+    name: str = "mover"
+    size_m: Vec3 = (0.3, 0.3, 0.3)
+    start: Vec3 = (1.0, -2.0, 1.0)
+    velocity: Vec3 = (0.0, 1.5, 0.0)
+    rgb: Vec3 = (0.2, 0.6, 0.2)
+
+
+PropConfig = Annotated[Union[BallConfig, BarrierConfig, MovingConfig], Field(discriminator="kind")]
+
+
+class MarkerPipelineConfig(_Model):
+    tracker: str = "kalman"
+    calibration: Literal["ground_truth", "estimated"] = "ground_truth"
+    smoothing: Literal["none", "butterworth", "rts"] = "none"
+    max_gap_frames: int = Field(10, ge=0)
+    solve_skeleton: bool = True
+
+
+class ShirtPipelineConfig(_Model):
+    database: str | None = Field(None, description="pose database file (built by `simbench shirt build-db`)")
+    database_size: int = Field(4000, ge=100)
+    baseline: bool = True
+
+
+class CalibrationSceneConfig(_Model):
+    board: Literal["checkerboard", "charuco"] = "checkerboard"
+    board_cols: int = Field(9, ge=3)
+    board_rows: int = Field(6, ge=3)
+    square_m: float = Field(0.06, gt=0.0)
+    n_views: int = Field(40, ge=3)
+    wand: bool = True
+    wand_frames: int = Field(120, ge=0)
+
+
+class Scenario(_Model):
+    name: str
+    description: str = ""
+    seed: int = Field(0, ge=0)
+    duration_s: float = Field(2.0, gt=0.0, le=120.0)
+    fps: float = Field(30.0, gt=0.0, le=1000.0)
+    body: BodyConfig = BodyConfig()
+    subject: SubjectConfig = SubjectConfig()
+    motion: MotionConfig = MotionConfig()
+    sensor: SensorConfig = SensorConfig()
+    rig: RigConfig | None = None
+    cameras: tuple[CameraConfig, ...] = ()
+    lighting: LightingConfig = LightingConfig()
+    set: SetConfig = SetConfig()
+    props: tuple[PropConfig, ...] = ()
+    markers_pipeline: MarkerPipelineConfig = MarkerPipelineConfig()
+    shirt_pipeline: ShirtPipelineConfig = ShirtPipelineConfig()
+    calibration_scene: CalibrationSceneConfig | None = None
+    source_dir: str = Field("", exclude=True, description="directory of the scenario file (relative paths)")
+
+    @model_validator(mode="after")
+    def _checks(self):
+        if not self.cameras and self.rig is None:
+            object.__setattr__(self, "rig", RigConfig())
+        names = [c.name for c in self.cameras]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must be unique, got {names}")
+        if self.sensor.exposure_ms > 1000.0 / self.fps + 1e-9:
+            raise ValueError(f"sensor.exposure_ms = {self.sensor.exposure_ms} exceeds the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
+        return self
+
+    @property
+    def n_frames(self) -> int:
+        return int(round(self.duration_s * self.fps))
+
+    def frame_times(self) -> np.ndarray:
+        """Timestamps ``(F,)`` in seconds: the middle of each frame's exposure."""
+        return np.arange(self.n_frames) / self.fps + 0.5 * self.sensor.exposure_ms / 1000.0
+
+    def resolve_path(self, p: str) -> Path:
+        path = Path(p)
+        return path if path.is_absolute() else Path(self.source_dir or ".") / path
+
+    def content_hash(self) -> str:
+        """Stable hash of the resolved scenario (what determines the run's numbers)."""
+        blob = json.dumps(self.model_dump(mode="json"), sort_keys=True).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+    def with_overrides(self, overrides: dict[str, object]) -> "Scenario":
+        """A copy with dotted-path fields replaced (``{"sensor.exposure_ms": 20}``), validated."""
+        data = self.model_dump(mode="python")
+        for dotted, value in overrides.items():
+            _set_dotted(data, dotted, value)
+        data["source_dir"] = self.source_dir
+        return Scenario.model_validate(data)
+
+
+def _set_dotted(data: dict, dotted: str, value: object) -> None:
+    keys = dotted.split(".")
+    node = data
+    for k in keys[:-1]:
+        if isinstance(node, (list, tuple)):
+            node = node[int(k)]
+            continue
+        if k not in node or node[k] is None:
+            node[k] = {}
+        node = node[k]
+    if isinstance(node, list):
+        node[int(keys[-1])] = value
+    else:
+        node[keys[-1]] = value
+
+
+def _format_loc(loc: tuple) -> str:
+    parts = []
+    for p in loc:
+        if isinstance(p, int):
+            parts.append(str(p))
+        elif p in ("ball", "barrier", "moving") or p.startswith("function-"):
+            continue
+        else:
+            parts.append(str(p))
+    return ".".join(parts) or "<root>"
+
+
+def validation_error_to_scenario_error(path: Path, exc: ValidationError) -> ScenarioError:
+    err = exc.errors()[0]
+    loc = _format_loc(tuple(err.get("loc", ())))
+    value = err.get("input")
+    msg = err.get("msg", "invalid")
+    if err.get("type") == "extra_forbidden":
+        msg = "unknown field; check the spelling against `simbench info --schema`"
+    if err.get("type") == "missing":
+        value = "<missing>"
+        msg = "this field is required"
+    if isinstance(value, dict):
+        value = "{...}"
+    extra = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
+    return ScenarioError(path, loc, value, msg + extra)
+
+
+def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Raises
+    ------
+    ScenarioError
+        naming the file, the field, the value and what is allowed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "<file>", str(path), "file not found; scenarios live in scenarios/*.toml")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    data.setdefault("name", path.stem)
+    data["source_dir"] = str(path.parent.resolve())
+    for dotted, value in (overrides or {}).items():
+        _set_dotted(data, dotted, value)
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error_to_scenario_error(path, exc) from None
+    if scenario.motion.bvh:
+        bvh = scenario.resolve_path(scenario.motion.bvh)
+        if not bvh.is_file():
+            raise ScenarioError(path, "motion.bvh", scenario.motion.bvh, f"file not found (looked for {bvh})")
+    return scenario
