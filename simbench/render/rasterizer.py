@@ -221,9 +221,8 @@ def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar
 class Rasterizer:
     """Renders static and dynamic triangle geometry into (radiance, ids, depth)."""
 
-    def __init__(self, width: int, height: int, context: GLContext | None = None) -> None:
-        self.width, self.height = int(width), int(height)
-        self.context = context or GLContext(self.width, self.height)
+    def __init__(self, context: GLContext | None = None) -> None:
+        self.context = context or GLContext(64, 64)
         self.context.make_current()
         self._prog = gl.glCreateProgram()
         for src, kind in ((_VERT, gl.GL_VERTEX_SHADER), (_FRAG, gl.GL_FRAGMENT_SHADER)):
@@ -236,19 +235,29 @@ class Rasterizer:
             for name in ("u_world_to_cam", "u_proj", "u_n_lights", "u_light_kind", "u_light_vec",
                          "u_light_rgb", "u_ambient", "u_cam_pos", "u_ring_rgb", "u_specular")
         }
-        self._fbo = gl.glGenFramebuffers(1)
-        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._fbo)
-        self._rb = gl.glGenRenderbuffers(4)
+        self._fbos: dict[tuple[int, int], int] = {}
+
+    def _framebuffer(self, width: int, height: int) -> int:
+        """Framebuffer with radiance / id / depth attachments of this size (cached)."""
+        key = (width, height)
+        if key in self._fbos:
+            return self._fbos[key]
+        fbo = gl.glGenFramebuffers(1)
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, fbo)
+        rbs = gl.glGenRenderbuffers(4)
         formats = (gl.GL_RGBA32F, gl.GL_R32I, gl.GL_R32F, gl.GL_DEPTH_COMPONENT24)
         attach = (gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2, gl.GL_DEPTH_ATTACHMENT)
-        for rb, fmt, att in zip(self._rb, formats, attach):
+        for rb, fmt, att in zip(rbs, formats, attach):
             gl.glBindRenderbuffer(gl.GL_RENDERBUFFER, rb)
-            gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, fmt, self.width, self.height)
+            gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, fmt, width, height)
             gl.glFramebufferRenderbuffer(gl.GL_FRAMEBUFFER, att, gl.GL_RENDERBUFFER, rb)
         status = gl.glCheckFramebufferStatus(gl.GL_FRAMEBUFFER)
         if status != gl.GL_FRAMEBUFFER_COMPLETE:
             raise RuntimeError(f"incomplete framebuffer (status {status:#x})")
         gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
+        self._fbos[key] = fbo
+        return fbo
+
         self._static: _Mesh | None = None
         self._dynamic: _Mesh | None = None
 
@@ -272,6 +281,8 @@ class Rasterizer:
     # ---------------------------------------------------------------- render
     def render(
         self,
+        width: int,
+        height: int,
         K: np.ndarray,
         R: np.ndarray,
         t: np.ndarray,
@@ -292,8 +303,8 @@ class Rasterizer:
         if len(lights) > MAX_LIGHTS:
             raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
         self.context.make_current()
-        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._fbo)
-        gl.glViewport(0, 0, self.width, self.height)
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._framebuffer(width, height))
+        gl.glViewport(0, 0, width, height)
         gl.glEnable(gl.GL_DEPTH_TEST)
         gl.glDepthFunc(gl.GL_LESS)
         gl.glDisable(gl.GL_MULTISAMPLE)
@@ -306,7 +317,7 @@ class Rasterizer:
         W2C = np.eye(4)
         W2C[:3, :3] = R
         W2C[:3, 3] = t
-        P = projection_from_K(np.asarray(K, float), self.width, self.height, znear, zfar)
+        P = projection_from_K(np.asarray(K, float), width, height, znear, zfar)
         cam_pos = -np.asarray(R).T @ np.asarray(t)
         gl.glUseProgram(self._prog)
         loc = self._loc
@@ -332,7 +343,7 @@ class Rasterizer:
             if mesh is not None:
                 mesh.draw()
         out: dict[str, np.ndarray] = {}
-        H, W = self.height, self.width
+        H, W = height, width
         if "radiance" in outputs:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGB, gl.GL_FLOAT)

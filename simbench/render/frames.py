@@ -1,0 +1,206 @@
+"""From scene states to camera frames: shutter integration, distortion, sensor.
+
+:class:`FrameRenderer` renders, for each frame and each camera, the mean radiance
+over the shutter interval from sub-frame renders (their count adapts to how far
+the body moves in the image during the exposure), applies distortion and optics
+blur, and runs the sensor model. It also returns the id map and marker visibility
+at mid-exposure, the instant the ground truth describes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from simbench.render import ids as idc
+from simbench.render.camera import VirtualCamera
+from simbench.render.geometry import MovingGeometry
+from simbench.render.lighting import Lighting
+from simbench.render.rasterizer import GeometryBuffers, Light, Rasterizer
+from simbench.render.sensor import Sensor, WhiteBalance
+from simbench.scenario import SensorConfig
+
+
+@dataclass
+class Pose:
+    """Everything that moves, at one instant (arrays as :meth:`MovingGeometry.pose` takes)."""
+
+    body_pos: np.ndarray     # (B, 3)
+    body_rot: np.ndarray     # (B, 3, 3)
+    marker_pos: np.ndarray   # (M, 3)
+    prop_T: np.ndarray       # (P, 4, 4)
+    probe_points: np.ndarray  # (K, 3) points whose image motion sets the blur sub-frame count
+
+
+@dataclass
+class FrameOutput:
+    """One frame of every camera.
+
+    images : (C, H, W, 3) uint8 RGB
+    ids : (C, H, W) int16 id map at mid-exposure (see :mod:`simbench.render.ids`)
+    marker_visible_fraction : (C, M) float, visible area / expected area of each marker
+    n_subframes : int
+    """
+
+    index: int
+    time_s: float
+    images: np.ndarray
+    ids: np.ndarray
+    marker_visible_fraction: np.ndarray
+    n_subframes: int
+
+
+class FrameRenderer:
+    def __init__(
+        self,
+        cameras: list[VirtualCamera],
+        sensor_cfg: SensorConfig,
+        fps: float,
+        lighting: Lighting,
+        static: GeometryBuffers,
+        moving: MovingGeometry,
+        n_markers: int,
+        marker_radius: float,
+        rasterizer: Rasterizer | None = None,
+    ) -> None:
+        self.cameras = cameras
+        self.cfg = sensor_cfg
+        self.fps = fps
+        self.lighting = lighting
+        self.moving = moving
+        self.n_markers = n_markers
+        self.marker_radius = marker_radius
+        self.raster = rasterizer or Rasterizer()
+        self.raster.set_static(static)
+        self.raster.set_dynamic(moving.buffers)
+        self.sensors = [Sensor(sensor_cfg, fps) for _ in cameras]
+        self.wbs = [WhiteBalance(sensor_cfg, fps) for _ in cameras]
+        self.exposure_s = sensor_cfg.exposure_ms * 1e-3
+
+    # ------------------------------------------------------------------ shutter
+    def subframe_count(self, pose_open: Pose, pose_mid: Pose, pose_close: Pose) -> int:
+        """Sub-frames needed so that nothing moves more than ``blur_step_px`` between two."""
+        if not self.cfg.motion_blur:
+            return 1
+        worst = 0.0
+        for cam in self.cameras:
+            a, b, c = (cam.project(p.probe_points) for p in (pose_open, pose_mid, pose_close))
+            d = np.linalg.norm(b - a, axis=1) + np.linalg.norm(c - b, axis=1)
+            inside = cam.calibration_camera().in_image(b, margin_px=-50)
+            if np.any(inside & np.isfinite(d)):
+                worst = max(worst, float(np.nanmax(d[inside])))
+        n = int(np.ceil(worst / self.cfg.blur_step_px))
+        return int(np.clip(n, 1, self.cfg.max_subframes))
+
+    def subframe_times(self, t_mid: float, n: int) -> np.ndarray:
+        if n == 1:
+            return np.array([t_mid])
+        return t_mid + self.exposure_s * ((np.arange(n) + 0.5) / n - 0.5)
+
+    # ------------------------------------------------------------------ lights
+    def _lights(self, t: float, cam: VirtualCamera) -> tuple[list[Light], np.ndarray, np.ndarray | None]:
+        if self.cfg.mode == "ir":
+            # IR: an IR-pass filter blocks the room lights; each camera's ring light
+            # lights the scene dimly and makes retro-reflective markers glow.
+            ring = np.full(3, self.cfg.ring_light)
+            lights = [Light("point", c.center, np.full(3, 0.15 * self.cfg.ring_light)) for c in self.cameras]
+            return lights, np.full(3, 0.02), ring
+        return self.lighting.lights_at(t), self.lighting.ambient_rgb, None
+
+    # ------------------------------------------------------------------ render
+    def render_frame(self, index: int, t_mid: float, subframe_poses: list[Pose], mid_pose: Pose,
+                     rng: np.random.Generator) -> FrameOutput:
+        C = len(self.cameras)
+        ss = self.cfg.antialias
+        H, W = self.cameras[0].height, self.cameras[0].width
+        images = np.zeros((C, H, W, 3), np.uint8)
+        id_maps = np.zeros((C, H, W), np.int16)
+        vis = np.zeros((C, self.n_markers))
+        n = len(subframe_poses)
+        # Pose every sub-frame once; all cameras share them (synchronised global shutters).
+        posed = [self.moving.pose(p.body_pos, p.body_rot, p.marker_pos, p.prop_T) for p in subframe_poses]
+        mid_posed = self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
+        sub_times = self.subframe_times(t_mid, n)
+        for ci, cam in enumerate(self.cameras):
+            canvas = cam.canvas(ss)
+            acc = None
+            for (P, N), ts in zip(posed, sub_times):
+                self.raster.update_dynamic(P, N)
+                lights, ambient, ring = self._lights(float(ts), cam)
+                out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
+                                         outputs=("radiance",))
+                acc = out["radiance"].copy() if acc is None else acc + out["radiance"]
+            radiance = acc / np.float32(n)
+            # Ids and visibility at mid-exposure (the instant of the ground truth).
+            self.raster.update_dynamic(*mid_posed)
+            lights, ambient, ring = self._lights(t_mid, cam)
+            idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
+                                     outputs=("ids",))["ids"]
+            vis[ci] = self._visible_fraction(cam, idr, mid_pose.marker_pos, ss)
+            id_maps[ci] = cam.finish_nearest(idr, ss).astype(np.int16)
+            img = cam.finish_radiance(radiance, ss)
+            if self.cfg.psf_sigma_px > 0:
+                img = cv2.GaussianBlur(img, (0, 0), self.cfg.psf_sigma_px)
+            e = self.sensors[ci].electrons(img, rng)
+            images[ci] = self.sensors[ci].to_frame(e, self.wbs[ci])
+        return FrameOutput(index, t_mid, images, id_maps, vis, n)
+
+    def _visible_fraction(self, cam: VirtualCamera, canvas_ids: np.ndarray, marker_pos: np.ndarray, ss: int) -> np.ndarray:
+        """Visible marker area over its expected (unoccluded) area, per marker ``(M,)``."""
+        M = self.n_markers
+        if M == 0:
+            return np.zeros(0)
+        m = canvas_ids.ravel() - idc.MARKER_BASE
+        m = m[(m >= 0) & (m < M)]
+        counts = np.bincount(m, minlength=M).astype(float) / ss**2
+        z = cam.depth(marker_pos)
+        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            expected = np.pi * (f * self.marker_radius / z) ** 2
+            frac = np.where(z > 0, counts / np.maximum(expected, 1e-9), 0.0)
+        uv = cam.project(marker_pos)
+        frac[~cam.calibration_camera().in_image(uv)] = 0.0
+        return np.clip(frac, 0.0, 1.5)
+
+
+def plan_subframes(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Callable[[np.ndarray], list[Pose]]) -> list[np.ndarray]:
+    """Sub-frame times of every frame (adaptive count), from poses at shutter open/mid/close."""
+    e = renderer.exposure_s
+    if not renderer.cfg.motion_blur or e <= 0:
+        return [np.array([t]) for t in times_mid]
+    probe_times = np.stack([times_mid - e / 2, times_mid, times_mid + e / 2], axis=1).ravel()
+    poses = poses_at_times(pose_at, probe_times)
+    out = []
+    for k, t in enumerate(times_mid):
+        n = renderer.subframe_count(poses[3 * k], poses[3 * k + 1], poses[3 * k + 2])
+        out.append(renderer.subframe_times(float(t), n))
+    return out
+
+
+def poses_at_times(pose_at: Callable[[np.ndarray], list[Pose]], times: np.ndarray) -> list[Pose]:
+    """``pose_at`` needs strictly increasing times: sort, drop repeats, and map back."""
+    uniq, inv = np.unique(np.asarray(times, float), return_inverse=True)
+    poses_u = pose_at(uniq)
+    return [poses_u[i] for i in inv.ravel()]
+
+
+def frame_rng(seed: int, frame: int) -> np.random.Generator:
+    """The noise generator of one frame: independent of how many frames came before."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x5EB5, frame]))
+
+
+def iterate_frames(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Callable[[np.ndarray], list[Pose]],
+                   seed: int) -> Iterator[FrameOutput]:
+    """Render every frame in order (a generator: frames are written as they come)."""
+    plan = plan_subframes(renderer, times_mid, pose_at)
+    all_times = np.concatenate([np.concatenate([p, [t]]) for p, t in zip(plan, times_mid)])
+    poses = poses_at_times(pose_at, all_times)
+    pos = 0
+    for k, (sub, t) in enumerate(zip(plan, times_mid)):
+        sub_poses = poses[pos: pos + len(sub)]
+        mid_pose = poses[pos + len(sub)]
+        pos += len(sub) + 1
+        yield renderer.render_frame(k, float(t), sub_poses, mid_pose, frame_rng(seed, k))
