@@ -1,0 +1,516 @@
+"""Standard motion-capture files: C3D, TRC (OpenSim), CSV for markers; BVH for the solved skeleton.
+
+Every writer writes a temporary file next to the target and renames it into place, so an
+error never leaves a half-written file behind (and an existing file stays intact).
+
+Axes and units
+--------------
+Inside the pipeline: world Z up, metres, seconds (``docs/humanoid_spec.md``). Files:
+
+* **C3D** (ezc3d): world axes (Z up), millimetres (``POINT:UNITS = "mm"``), ``POINT:RATE``,
+  ``POINT:LABELS``. The 4th word of each point holds the residual as C3D defines it: ``-1``
+  for a gap, ``0`` for a point filled by interpolation, ``> 0`` for a measured point. The
+  pipeline's residual is the mean *reprojection* residual in pixels, so that is what is
+  stored (resolution 0.01 px, saturating at 2.55 px, ``POINT:SCALE = -0.01``), and a
+  ``SIMBENCH`` parameter group says so (``RESIDUAL_UNITS = "px"``) and keeps the exact time
+  of the first frame (``FIRST_TIME_S``). Other programs ignore that group.
+* **TRC** (OpenSim): millimetres, OpenSim's axes by default: ``X`` forward, ``Y`` up, ``Z``
+  to the subject's right, i.e. ``(x, y, z)_trc = (x, z, -y)_world`` (a rotation of -90 deg
+  about X; our humanoid faces +X, as OpenSim models do). ``axes="world"`` keeps Z up.
+  Gaps are written ``NaN``, which OpenSim reads as missing.
+* **CSV**: world axes, millimetres: ``frame, time_s``, then ``<label>_x_mm, <label>_y_mm,
+  <label>_z_mm`` per marker, then ``<label>_filled`` (0/1) per marker; gaps are empty fields.
+* **BVH**: Y up by default (the usual BVH convention; ``up_axis="z"`` keeps the world axes),
+  centimetres, angles in degrees; see :func:`write_bvh`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+from typing import Iterator, Literal
+
+import ezc3d
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from mocap.errors import InputFileError, MocapInputError
+from mocap.skeleton import SkeletonFit
+from mocap.subject import SubjectModel
+from mocap.types import Trajectories
+
+__all__ = [
+    "write_c3d",
+    "read_c3d",
+    "write_trc",
+    "read_trc",
+    "write_csv",
+    "read_csv",
+    "write_bvh",
+    "world_to_opensim",
+    "opensim_to_world",
+]
+
+# (x, y, z)_opensim = P @ (x, y, z)_world: -90 deg about X (Z up -> Y up, Y left -> Z right).
+_Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+_UNIT_TO_M = {"mm": 1e-3, "m": 1.0, "cm": 1e-2, "dm": 0.1, "in": 0.0254}
+_C3D_RESIDUAL_STEP = 0.01  # |POINT:SCALE|: residual resolution in the 4th word
+_C3D_RESIDUAL_MAX = 255 * _C3D_RESIDUAL_STEP  # the residual is stored in one byte
+
+
+def world_to_opensim(xyz: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` world (Z up) -> OpenSim axes (Y up, Z right): ``(x, z, -y)``."""
+    return np.asarray(xyz, dtype=np.float64) @ _Z_UP_TO_Y_UP.T
+
+
+def opensim_to_world(xyz: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`world_to_opensim`."""
+    return np.asarray(xyz, dtype=np.float64) @ _Z_UP_TO_Y_UP
+
+
+@contextlib.contextmanager
+def _atomic_target(path: Path, suffix: str = "") -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` if the block succeeds."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise MocapInputError(f"{path}: the folder {str(path.parent)!r} does not exist; create it or choose another output path")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _rate(traj_times: np.ndarray, rate_hz: float | None, what: str) -> float:
+    if rate_hz is not None:
+        rate = float(rate_hz)
+    elif len(traj_times) >= 2:
+        rate = float(1.0 / np.median(np.diff(traj_times)))
+    else:
+        rate = float("nan")
+    if not (np.isfinite(rate) and rate > 0):
+        raise MocapInputError(f"{what}: cannot tell the frame rate from {len(traj_times)} timestamps; pass rate_hz=")
+    return rate
+
+
+# ---------------------------------------------------------------------------------------- C3D
+def write_c3d(path: str | os.PathLike, traj: Trajectories, *, rate_hz: float | None = None) -> Path:
+    """Write labelled markers as a C3D file (ezc3d).
+
+    Parameters
+    ----------
+    path : path-like
+        Output file (``.c3d``).
+    traj : Trajectories
+        ``(F, M, 3)`` metres, world frame; NaN gaps.
+    rate_hz : float, optional
+        Point rate (default: from the median time step of ``traj.times``). C3D stores a
+        constant rate: frame ``i`` is at ``times[0] + i / rate``.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    rate = _rate(traj.times, rate_hz, str(path))
+    F, M = traj.xyz.shape[:2]
+    valid = np.isfinite(traj.xyz).all(axis=2)  # (F, M)
+    points = np.ones((4, M, F))
+    points[:3] = np.where(valid[..., None], traj.xyz * 1000.0, np.nan).transpose(2, 1, 0)
+    res_px = np.asarray(traj.residual_px, dtype=np.float64)
+    measured = np.clip(np.nan_to_num(res_px, nan=_C3D_RESIDUAL_STEP), _C3D_RESIDUAL_STEP, _C3D_RESIDUAL_MAX)
+    residual = np.where(~valid, -1.0, np.where(np.asarray(traj.filled, dtype=bool), 0.0, measured))
+
+    c3d = ezc3d.c3d()
+    point = c3d["parameters"]["POINT"]
+    point["RATE"]["value"] = [rate]
+    point["UNITS"]["value"] = ["mm"]
+    point["SCALE"]["value"] = [-_C3D_RESIDUAL_STEP]  # negative: floating-point storage
+    point["LABELS"]["value"] = [str(label) for label in traj.labels]
+    point["DESCRIPTIONS"]["value"] = ["" for _ in traj.labels]
+    first_time = float(traj.times[0]) if F else 0.0
+    c3d["header"]["points"]["first_frame"] = max(int(round(first_time * rate)), 0)
+    c3d.add_parameter("SIMBENCH", "RESIDUAL_UNITS", ["px"])
+    c3d.add_parameter("SIMBENCH", "FIRST_TIME_S", [first_time])
+    c3d["data"]["points"] = points
+    c3d["data"]["meta_points"] = {"residuals": residual.T[None, :, :]}
+    with _atomic_target(path, ".c3d") as tmp:  # ezc3d appends .c3d to names without it
+        c3d.write(str(tmp))
+    return path
+
+
+def read_c3d(path: str | os.PathLike) -> Trajectories:
+    """Read the labelled points of a C3D file (any writer) as trajectories in metres.
+
+    Points with a negative residual (C3D's "invalid") are NaN. For files written by
+    :func:`write_c3d` the filled flags and the pixel residuals come back too; other files
+    get ``filled = False`` (vendors disagree on what a zero residual means) and NaN residuals.
+
+    Returns
+    -------
+    Trajectories
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "no such file", "give the path of an existing .c3d file")
+    try:
+        c3d = ezc3d.c3d(str(path))
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise InputFileError(path, f"not a readable C3D file ({exc})", "give a C3D file (e.g. one written by write_c3d, Vicon, Qualisys)") from None
+    params = c3d["parameters"]
+    point = params["POINT"]
+    labels = list(point["LABELS"]["value"])
+    i = 2
+    while f"LABELS{i}" in point:
+        labels += list(point[f"LABELS{i}"]["value"])
+        i += 1
+    labels = [str(label).strip() for label in labels]
+    units = str(point["UNITS"]["value"][0]).strip().lower() if "UNITS" in point and len(point["UNITS"]["value"]) else "mm"
+    if units not in _UNIT_TO_M:
+        raise InputFileError(path, f"POINT:UNITS is {units!r}", f"use a file in one of {sorted(_UNIT_TO_M)}", field="POINT:UNITS")
+    rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputFileError(path, f"POINT:RATE is {rate!r}", "give a file with a positive point rate", field="POINT:RATE")
+    pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M', F)
+    n = min(pts.shape[1], len(labels))
+    labels = labels[:n]
+    xyz = pts[:3, :n].transpose(2, 1, 0) * _UNIT_TO_M[units]  # (F, M, 3)
+    residual = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)[0, :n].T  # (F, M)
+    invalid = (residual < 0) | ~np.isfinite(xyz).all(axis=2)
+    xyz[invalid] = np.nan
+    F = xyz.shape[0]
+    ours = "SIMBENCH" in params and "RESIDUAL_UNITS" in params["SIMBENCH"]
+    if ours and "FIRST_TIME_S" in params["SIMBENCH"]:
+        t0 = float(np.asarray(params["SIMBENCH"]["FIRST_TIME_S"]["value"]).ravel()[0])
+    else:
+        t0 = float(c3d["header"]["points"]["first_frame"]) / rate
+    times = t0 + np.arange(F) / rate
+    if ours:
+        filled = (residual == 0) & ~invalid
+        residual_px = np.where((residual > 0) & ~invalid, residual, np.nan)
+    else:
+        filled = np.zeros((F, n), dtype=bool)
+        residual_px = None
+    return Trajectories(labels, xyz, times, filled=filled, residual_px=residual_px)
+
+
+# ---------------------------------------------------------------------------------------- TRC
+def write_trc(
+    path: str | os.PathLike,
+    traj: Trajectories,
+    *,
+    rate_hz: float | None = None,
+    axes: Literal["opensim", "world"] = "opensim",
+) -> Path:
+    """Write labelled markers as an OpenSim TRC file (tab-separated, millimetres).
+
+    Header: ``PathFileType 4 (X/Y/Z) <file name>``; then the keys ``DataRate CameraRate
+    NumFrames NumMarkers Units OrigDataRate OrigDataStartFrame OrigNumFrames`` and their
+    values (``Units = mm``; both rates = ``rate_hz``); then ``Frame# Time <label>...`` and
+    ``X1 Y1 Z1 X2 ...``; a blank line; one row per frame (frame numbers from 1, time in s).
+
+    Parameters
+    ----------
+    path : path-like
+    traj : Trajectories
+        Metres, world frame (Z up).
+    rate_hz : float, optional
+        DataRate (default: from the median time step). The Time column keeps the real times.
+    axes : {"opensim", "world"}
+        ``"opensim"`` (default): Y up, ``(x, z, -y)`` of the world; ``"world"``: as is (Z up).
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    rate = _rate(traj.times, rate_hz, str(path))
+    xyz = _axes_out(traj.xyz, axes, path)
+    F, M = xyz.shape[:2]
+    for label in traj.labels:
+        if not label or any(ch in label for ch in "\t\r\n"):
+            raise MocapInputError(f"{path}: marker label {label!r} cannot go in a TRC header; rename it (no tabs or line breaks, not empty)")
+    header = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+        f"{rate:.10g}\t{rate:.10g}\t{F}\t{M}\tmm\t{rate:.10g}\t1\t{F}",
+        "Frame#\tTime\t" + "\t\t\t".join(traj.labels),
+        "\t\t" + "\t".join(f"{a}{i + 1}" for i in range(M) for a in "XYZ"),
+        "",
+    ]
+    table = pd.DataFrame(xyz.reshape(F, 3 * M) * 1000.0)
+    table.insert(0, "time", np.asarray(traj.times, dtype=np.float64))
+    table.insert(0, "frame", np.arange(1, F + 1))
+    body = table.to_csv(sep="\t", header=False, index=False, na_rep="NaN", float_format="%.6f", lineterminator="\n")
+    with _atomic_target(path) as tmp:
+        tmp.write_text("\n".join(header) + "\n" + body)
+    return path
+
+
+def read_trc(path: str | os.PathLike, *, axes: Literal["opensim", "world"] = "opensim") -> Trajectories:
+    """Read a TRC file (ours, OpenSim's or a Motion Analysis one) as trajectories in metres.
+
+    Parameters
+    ----------
+    path : path-like
+    axes : {"opensim", "world"}
+        Axes of the file: ``"opensim"`` (Y up, default, as :func:`write_trc` writes) is
+        rotated back to the world's Z up; ``"world"`` is taken as is.
+
+    Returns
+    -------
+    Trajectories
+        Gaps (empty or ``NaN`` fields) are NaN.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise InputFileError(path, f"cannot read ({exc.strerror})", "give the path of a .trc file") from None
+    except UnicodeDecodeError:
+        raise InputFileError(path, "not a text file", "give a TRC (tab-separated text) file") from None
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise InputFileError(path, "first line does not start with PathFileType", "give a TRC file (OpenSim / Motion Analysis format)", field="PathFileType")
+    keys = [k for k in lines[1].split("\t") if k.strip()]
+    values = [v for v in lines[2].split("\t") if v.strip()]
+    meta = dict(zip((k.strip() for k in keys), (v.strip() for v in values)))
+    for key in ("DataRate", "NumMarkers", "Units"):
+        if key not in meta:
+            raise InputFileError(path, f"header has no {key}", "write the TRC header keys DataRate CameraRate NumFrames NumMarkers Units ...", field=key)
+    units = meta["Units"].lower()
+    if units not in _UNIT_TO_M:
+        raise InputFileError(path, f"Units is {meta['Units']!r}", f"use one of {sorted(_UNIT_TO_M)}", field="Units")
+    try:
+        n_markers = int(meta["NumMarkers"])
+    except ValueError:
+        raise InputFileError(path, f"NumMarkers is {meta['NumMarkers']!r}", "write the number of markers", field="NumMarkers") from None
+    labels = [t.strip() for t in lines[3].split("\t")[2:] if t.strip()]
+    if len(labels) != n_markers:
+        raise InputFileError(path, f"{len(labels)} marker names on line 4 but NumMarkers = {n_markers}", "make the header agree with the columns", field="NumMarkers")
+    rows = [ln.rstrip("\r") for ln in lines[5:] if ln.strip()]
+    n_cols = 2 + 3 * n_markers
+    data = np.full((len(rows), n_cols), np.nan)
+    for i, row in enumerate(rows):
+        fields = row.split("\t")[:n_cols]
+        try:
+            data[i, : len(fields)] = [float(v) if v.strip() else np.nan for v in fields]
+        except ValueError:
+            raise InputFileError(path, f"data row {i + 1} has a field that is not a number", "fix or remove that row", field=f"line {i + 7}") from None
+    xyz = data[:, 2:].reshape(len(rows), n_markers, 3) * _UNIT_TO_M[units]
+    xyz = _axes_in(xyz, axes, path)
+    return Trajectories(labels, xyz, data[:, 1])
+
+
+def _axes_out(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
+    if axes == "opensim":
+        return world_to_opensim(xyz)
+    if axes == "world":
+        return np.asarray(xyz, dtype=np.float64)
+    raise MocapInputError(f"{path}: axes must be 'opensim' (Y up) or 'world' (Z up), got {axes!r}")
+
+
+def _axes_in(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
+    if axes == "opensim":
+        return opensim_to_world(xyz)
+    if axes == "world":
+        return xyz
+    raise MocapInputError(f"{path}: axes must be 'opensim' (Y up) or 'world' (Z up), got {axes!r}")
+
+
+# ---------------------------------------------------------------------------------------- CSV
+def write_csv(path: str | os.PathLike, traj: Trajectories) -> Path:
+    """Write labelled markers as CSV: world axes (Z up), millimetres, empty fields in gaps.
+
+    Columns: ``frame`` (from 0), ``time_s``, ``<label>_x_mm``, ``<label>_y_mm``,
+    ``<label>_z_mm`` for each marker, then ``<label>_filled`` (1 where the point was filled
+    by interpolation) for each marker.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    F, M = traj.xyz.shape[:2]
+    coords = pd.DataFrame(
+        traj.xyz.reshape(F, 3 * M) * 1000.0,
+        columns=[f"{label}_{a}_mm" for label in traj.labels for a in "xyz"],
+    )
+    flags = pd.DataFrame(np.asarray(traj.filled, dtype=np.int8), columns=[f"{label}_filled" for label in traj.labels])
+    table = pd.concat([pd.DataFrame({"frame": np.arange(F), "time_s": np.asarray(traj.times, dtype=np.float64)}), coords, flags], axis=1)
+    with _atomic_target(path) as tmp:
+        table.to_csv(tmp, index=False, na_rep="", float_format="%.6f", lineterminator="\n")
+    return path
+
+
+def read_csv(path: str | os.PathLike) -> Trajectories:
+    """Read a CSV written by :func:`write_csv` back into trajectories (metres)."""
+    path = Path(path)
+    try:
+        table = pd.read_csv(path)
+    except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"not a readable CSV ({exc})", "give a CSV written by mocap.exports.write_csv") from None
+    if "time_s" not in table.columns:
+        raise InputFileError(path, "no time_s column", "give a CSV written by mocap.exports.write_csv", field="time_s")
+    labels = [c[: -len("_x_mm")] for c in table.columns if c.endswith("_x_mm")]
+    try:
+        cols = [f"{label}_{a}_mm" for label in labels for a in "xyz"]
+        xyz = table[cols].to_numpy(dtype=np.float64).reshape(len(table), len(labels), 3) / 1000.0
+    except KeyError as exc:
+        raise InputFileError(path, f"missing column {exc}", "every marker needs _x_mm, _y_mm and _z_mm columns") from None
+    filled_cols = [f"{label}_filled" for label in labels]
+    filled = table[filled_cols].to_numpy(dtype=bool) if all(c in table.columns for c in filled_cols) else None
+    return Trajectories(labels, xyz, table["time_s"].to_numpy(dtype=np.float64), filled=filled)
+
+
+# ---------------------------------------------------------------------------------------- BVH
+_AXIS_NAMES = "XYZ"
+
+
+def _hinge_channel(axis: np.ndarray, P: np.ndarray, where: str) -> tuple[int, float]:
+    """BVH channel (0 = X, 1 = Y, 2 = Z) and sign of a hinge axis given in body coordinates."""
+    a = P @ axis
+    k = int(np.argmax(np.abs(a)))
+    if abs(abs(a[k]) - 1.0) > 1e-6:
+        raise MocapInputError(f"{where}: hinge axis {axis.round(4).tolist()} is not a body axis; BVH channels rotate about X, Y or Z only")
+    return k, float(np.sign(a[k]))
+
+
+def write_bvh(
+    path: str | os.PathLike,
+    fit: SkeletonFit,
+    subject: SubjectModel,
+    *,
+    up_axis: Literal["y", "z"] = "y",
+    rate_hz: float | None = None,
+) -> Path:
+    """Write the solved skeleton as BVH: the humanoid's hierarchy and one frame per sample.
+
+    * Hierarchy: one ``JOINT`` per MJCF body (``ROOT`` = the pelvis), ``OFFSET`` = the body's
+      MJCF position in its parent (cm), the root's 0 (its position channels carry the free
+      joint's position, which is the pelvis origin in the world); leaves get an ``End Site`` at their farthest marker
+      (or 10 cm along the parent bone if they carry none).
+    * Channels: the root has ``Xposition Yposition Zposition`` (cm) and ``Zrotation
+      Yrotation Xrotation``; every other joint has three rotation channels: its hinges in
+      qpos order (a hinge about body axis ``a`` becomes the rotation channel about the BVH
+      axis ``a`` maps to), followed by the axes it does not have, which stay 0. A joint's
+      rotation is the product of its channels in the listed order, so ``R = Rx Ry Rz`` of the
+      contract is written exactly (``Xrotation Yrotation Zrotation``).
+    * Axes: ``up_axis="y"`` (default, the BVH custom): ``(x, y, z)_bvh = (x, z, -y)_world``, so
+      the body's Y axis becomes -Z (a hinge about Y is written as a Zrotation with its sign
+      flipped) and Z becomes Y. ``up_axis="z"``: the world axes unchanged.
+    * ``Frame Time`` = ``1 / rate_hz`` (default: the fit's rate, from its timestamps). Frames the fit could not solve repeat the nearest
+      solved frame (BVH has no way to mark a gap).
+
+    Parameters
+    ----------
+    path : path-like
+    fit : SkeletonFit
+        From :func:`mocap.skeleton.solve_skeleton` on ``subject``.
+    subject : SubjectModel
+    up_axis : {"y", "z"}
+    rate_hz : float, optional
+        Needed only for a single-frame fit.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    tree = fit.tree
+    if tree.body_names != subject.body_names:
+        raise MocapInputError(f"{path}: the fit's bodies {tree.body_names} are not the subject's {subject.body_names}; write the BVH with the subject the fit was solved with")
+    if tree.rest_rotation:
+        raise MocapInputError(f"{path}: a body of the MJCF has a rest orientation; BVH export needs body frames aligned with the world in the rest pose (docs/humanoid_spec.md)")
+    if up_axis == "y":
+        P = _Z_UP_TO_Y_UP
+    elif up_axis == "z":
+        P = np.eye(3)
+    else:
+        raise MocapInputError(f"{path}: up_axis must be 'y' or 'z', got {up_axis!r}")
+    if not fit.valid.any():
+        raise MocapInputError(f"{path}: no frame of the fit was solved, nothing to write; check the marker labels and min_markers")
+    rate = _rate(fit.times, rate_hz, str(path))
+    F = len(fit.times)
+    J = len(tree.body_names)
+    # Repeat the nearest solved frame where the fit has none.
+    ok = np.flatnonzero(fit.valid)
+    nearest = ok[np.clip(np.searchsorted(ok, np.arange(F)), 0, len(ok) - 1)]
+    left = ok[np.clip(np.searchsorted(ok, np.arange(F)) - 1, 0, len(ok) - 1)]
+    use = np.where(np.abs(left - np.arange(F)) <= np.abs(nearest - np.arange(F)), left, nearest)
+    qpos = fit.qpos[use]
+
+    # Per body: list of (channel axis index, source column in `values`, sign).
+    children: dict[int, list[int]] = {b: [] for b in range(J)}
+    for b in range(1, J):
+        children[int(tree.parents[b])].append(b)
+    channel_names: list[list[str]] = []
+    columns: list[np.ndarray] = []
+    root_pos = qpos[:, :3] @ P.T * 100.0  # cm
+    root_R = P @ Rotation.from_quat(qpos[:, 3:7], scalar_first=True).as_matrix() @ P.T
+    root_euler = np.degrees(Rotation.from_matrix(root_R).as_euler("ZYX"))  # R = Rz Ry Rx
+    channel_names.append(["Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"])
+    columns.append(np.concatenate([root_pos, root_euler], axis=1))
+    angles_deg = np.degrees(qpos[:, 7:])
+    for b in range(1, J):
+        hinges = np.flatnonzero(tree.hinge_bodies == b)
+        names, cols, used = [], [], set()
+        for h in hinges:
+            k, sign = _hinge_channel(tree.hinge_axes[h], P, f"{path}: hinge {tree.hinge_names[h]!r}")
+            if k in used:
+                raise MocapInputError(f"{path}: body {tree.body_names[b]!r} has two hinges about the same axis; BVH cannot write that")
+            used.add(k)
+            names.append(f"{_AXIS_NAMES[k]}rotation")
+            cols.append(sign * angles_deg[:, h])
+        for k in range(3):
+            if k not in used:
+                names.append(f"{_AXIS_NAMES[k]}rotation")
+                cols.append(np.zeros(F))
+        channel_names.append(names)
+        columns.append(np.stack(cols, axis=1))
+
+    marker_offsets: dict[str, list[np.ndarray]] = {}
+    for m in subject.markers:
+        marker_offsets.setdefault(m.body, []).append(m.offset_m)
+
+    def end_site(b: int) -> np.ndarray:
+        offs = marker_offsets.get(tree.body_names[b])
+        if offs:
+            offs_arr = np.array(offs)
+            return offs_arr[int(np.argmax(np.linalg.norm(offs_arr, axis=1)))]
+        bone = tree.offsets_m[b]
+        n = np.linalg.norm(bone)
+        return bone / n * 0.1 if n > 0 else np.array([0.0, 0.0, 0.1])
+
+    def fmt(v: np.ndarray) -> str:
+        return " ".join(f"{x:.6f}" for x in (P @ v) * 100.0)
+
+    lines = ["HIERARCHY"]
+
+    def emit(b: int, depth: int) -> None:
+        pad = "  " * depth
+        kind = "ROOT" if b == 0 else "JOINT"
+        lines.append(f"{pad}{kind} {tree.body_names[b]}")
+        lines.append(f"{pad}{{")
+        offset = np.zeros(3) if b == 0 else tree.offsets_m[b]
+        lines.append(f"{pad}  OFFSET {fmt(offset)}")
+        lines.append(f"{pad}  CHANNELS {len(channel_names[b])} {' '.join(channel_names[b])}")
+        if children[b]:
+            for c in children[b]:
+                emit(c, depth + 1)
+        else:
+            lines.append(f"{pad}  End Site")
+            lines.append(f"{pad}  {{")
+            lines.append(f"{pad}    OFFSET {fmt(end_site(b))}")
+            lines.append(f"{pad}  }}")
+        lines.append(f"{pad}}}")
+
+    emit(0, 0)
+    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / rate:.8f}"]
+    motion = np.concatenate(columns, axis=1)
+    body = pd.DataFrame(motion).to_csv(sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
+    with _atomic_target(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n" + body)
+    return path

@@ -1,0 +1,676 @@
+"""Skeleton solving: joint angles of the subject's humanoid fitted to labelled 3D markers.
+
+Per frame, inverse kinematics by Levenberg-Marquardt on the stacked marker position
+residuals ``p_model(q) - p_measured`` (only the markers with finite positions), with
+
+* the kinematics and analytic Jacobians of Pinocchio (model built from the subject's MJCF by
+  ``pinocchio.buildModelFromMJCF``; each marker an operational frame on its body);
+* joint limits as box constraints (active-set projection: a hinge at a limit whose step
+  points outwards is frozen for that step, the others are clamped);
+* warm start from the previous frame; the first frame (and the first after a gap) starts from
+  a rigid fit of the root (Kabsch, ``scipy.spatial.transform.Rotation.align_vectors``) on the
+  markers of the pelvis (and of the bodies next to it if the pelvis has fewer than three),
+  and gets more iterations;
+* a small Tikhonov term pulling every hinge towards its value in the previous frame (zero on
+  a cold start), so hinges the markers do not constrain (e.g. lumbar vs thorax split when
+  only the thorax carries markers) stay put instead of drifting.
+
+The Levenberg-Marquardt loop is written here rather than calling
+``scipy.optimize.least_squares`` because the free-flyer root lives on SE(3) (steps go through
+``pinocchio.integrate``) and because scipy's per-call overhead (about a millisecond) would
+dominate a 39-marker frame; a few numpy solves of a 39 x 39 system are all one frame needs.
+
+Conventions (``docs/humanoid_spec.md``): world Z up, metres, radians. Pinocchio's
+configuration ``q`` is ``(x, y, z, qx, qy, qz, qw, hinges...)``; MuJoCo's ``qpos`` is
+``(x, y, z, qw, qx, qy, qz, hinges...)`` with the same hinge order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+from scipy.spatial.transform import Rotation
+
+from mocap.errors import MocapInputError
+from mocap.subject import SubjectModel
+from mocap.types import Trajectories
+
+__all__ = [
+    "IKParams",
+    "KinematicTree",
+    "SkeletonFit",
+    "SkeletonSolver",
+    "solve_skeleton",
+    "mujoco_from_pinocchio_q",
+    "pinocchio_from_mujoco_q",
+]
+
+
+@dataclass(frozen=True)
+class IKParams:
+    """Settings of the per-frame inverse kinematics.
+
+    Attributes
+    ----------
+    max_iterations : int
+        Levenberg-Marquardt iterations per frame when warm-started.
+    cold_start_iterations : int
+        Iterations on the first frame and after a gap (start from the rigid root fit).
+    step_tolerance : float
+        Stop when the step norm (rad, m mixed) falls below this.
+    regularization_m_per_rad : float
+        Weight of the pull of each hinge towards its previous value: one radian of change
+        costs as much as this many metres of marker residual. Small enough not to bias
+        hinges the markers constrain (their marker Jacobians are ~0.1-0.5 m/rad).
+    initial_damping : float
+        Initial Levenberg-Marquardt damping (relative to the diagonal of J^T J).
+    min_markers : int
+        Frames with fewer finite markers are not solved (NaN in the fit).
+    restart_residual_m : float
+        If a warm-started frame ends with an RMS residual above this, it is solved again
+        from a cold start and the better of the two is kept.
+    marker_noise_m : float
+        Marker noise (standard deviation per axis) assumed for ``SkeletonFit.angle_std_rad``.
+    """
+
+    max_iterations: int = 30
+    cold_start_iterations: int = 300
+    step_tolerance: float = 1e-5
+    regularization_m_per_rad: float = 0.003
+    initial_damping: float = 1e-3
+    min_markers: int = 4
+    restart_residual_m: float = 0.02
+    marker_noise_m: float = 0.001
+
+    def __post_init__(self) -> None:
+        for name in ("max_iterations", "cold_start_iterations", "min_markers"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"IKParams.{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m"):
+            value = float(getattr(self, name))
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"IKParams.{name} must be a finite number >= 0, got {value!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicTree:
+    """The humanoid's tree as BVH and reports need it.
+
+    Attributes
+    ----------
+    body_names : list[str], length J
+        Bodies in depth-first MJCF order.
+    parents : (J,) int
+        Index of each body's parent body, -1 for the root.
+    offsets_m : (J, 3) float
+        Body origin (= joint centre) in the parent body's frame, metres.
+    hinge_names : list[str], length H
+        Hinges in qpos order.
+    hinge_bodies : (H,) int
+        Body index each hinge moves.
+    hinge_axes : (H, 3) float
+        Unit hinge axis in its body frame (at the rest pose).
+    lower_rad, upper_rad : (H,) float
+        Joint limits.
+    rest_rotation : bool
+        True if some body declares a rest orientation (not allowed by the humanoid contract;
+        BVH export refuses such models).
+    """
+
+    body_names: list[str]
+    parents: np.ndarray
+    offsets_m: np.ndarray
+    hinge_names: list[str]
+    hinge_bodies: np.ndarray
+    hinge_axes: np.ndarray
+    lower_rad: np.ndarray
+    upper_rad: np.ndarray
+    rest_rotation: bool
+
+
+@dataclass(eq=False)
+class SkeletonFit:
+    """Solved skeleton of every frame.
+
+    Attributes
+    ----------
+    times : (F,) float
+        Seconds (from the trajectories).
+    q : (F, nq) float
+        Pinocchio configuration: root position (m), root quaternion ``x y z w``, hinges (rad).
+        NaN for frames not solved.
+    qpos : (F, nq) float
+        The same in MuJoCo's order: root position, quaternion ``w x y z``, hinges.
+    hinge_names : list[str], length H
+    joint_angles_rad : (F, H) float
+        Hinge angles in qpos order (``qpos[:, 7:]``).
+    body_names : list[str], length J
+    joint_centres_m : (F, J, 3) float
+        World position of every body origin (= the joint centre linking it to its parent).
+    marker_labels : list[str], length M
+        Markers of the subject, in the subject's order.
+    marker_errors_mm : (F, M) float
+        Distance between each fitted model marker and its measurement, mm; NaN where the
+        marker had no measurement.
+    marker_rms_mm : (F,) float
+        RMS over the measured markers of ``marker_errors_mm`` (the per-frame residual).
+    n_markers : (F,) int
+        Markers used per frame.
+    iterations : (F,) int
+        Levenberg-Marquardt iterations spent per frame.
+    angle_std_rad : (F, H) float
+        Predicted standard deviation of each hinge angle for ``IKParams.marker_noise_m`` of
+        marker noise (Gauss-Newton covariance at the solution): large values flag hinges the
+        markers do not constrain.
+    valid : (F,) bool
+        Frames that were solved.
+    tree : KinematicTree
+    """
+
+    times: np.ndarray
+    q: np.ndarray
+    qpos: np.ndarray
+    hinge_names: list[str]
+    joint_angles_rad: np.ndarray
+    body_names: list[str]
+    joint_centres_m: np.ndarray
+    marker_labels: list[str]
+    marker_errors_mm: np.ndarray
+    marker_rms_mm: np.ndarray
+    n_markers: np.ndarray
+    iterations: np.ndarray
+    angle_std_rad: np.ndarray
+    valid: np.ndarray
+    tree: KinematicTree = field(repr=False)
+
+    def angles_by_name(self) -> dict[str, np.ndarray]:
+        """``{hinge name: (F,) angle in rad}``."""
+        return {n: self.joint_angles_rad[:, i] for i, n in enumerate(self.hinge_names)}
+
+    @property
+    def rate_hz(self) -> float:
+        if len(self.times) < 2:
+            return float("nan")
+        return float(1.0 / np.median(np.diff(self.times)))
+
+
+def mujoco_from_pinocchio_q(q: np.ndarray) -> np.ndarray:
+    """``(..., nq)`` Pinocchio configuration (quaternion x y z w) -> MuJoCo qpos (w x y z)."""
+    q = np.asarray(q, dtype=np.float64)
+    out = q.copy()
+    out[..., 3] = q[..., 6]
+    out[..., 4:7] = q[..., 3:6]
+    return out
+
+
+def pinocchio_from_mujoco_q(qpos: np.ndarray) -> np.ndarray:
+    """``(..., nq)`` MuJoCo qpos (quaternion w x y z) -> Pinocchio configuration (x y z w)."""
+    qpos = np.asarray(qpos, dtype=np.float64)
+    out = qpos.copy()
+    out[..., 3:6] = qpos[..., 4:7]
+    out[..., 6] = qpos[..., 3]
+    return out
+
+
+# Cold-start grid: values per hinge for bodies with 1, 2 and 3 hinges (25, 169 and 729 candidates).
+_GRID_STEPS = {1: 25, 2: 13, 3: 9}
+
+
+@dataclass(frozen=True, eq=False)
+class _HingeGrid:
+    values: np.ndarray  # (G, h) rad
+    rotations: np.ndarray  # (G, 3, 3) body rotation relative to its rest frame
+
+
+@dataclass(frozen=True, eq=False)
+class _ColdStartTables:
+    marker_depth: np.ndarray  # (M,) depth of each marker's body in the tree
+    parent: np.ndarray  # (B,)
+    rest_R: np.ndarray  # (B, 3, 3) body rest frame in its parent's frame
+    rest_t: np.ndarray  # (B, 3)
+    hinge_slice: list[np.ndarray]  # per body, indices of its hinges
+    grids: list[_HingeGrid | None]
+    own_markers: list[np.ndarray]  # per body, (M,) bool: marker on the body
+    child_markers: list[np.ndarray]  # per body, (M,) bool: marker on a child of the body
+    local_in_body: list[np.ndarray]  # per body, (M, 3) T-pose marker positions in its frame
+    child_origin: list[np.ndarray]  # per body, (M, 3) T-pose origin of each marker's body in its frame
+    child_radius: np.ndarray  # (M,) distance of each marker from its body's origin
+
+
+class SkeletonSolver:
+    """Pinocchio model of a subject with its markers, and the per-frame IK on it.
+
+    Parameters
+    ----------
+    subject : SubjectModel
+    params : IKParams, optional
+    """
+
+    def __init__(self, subject: SubjectModel, params: IKParams | None = None) -> None:
+        self.subject = subject
+        self.params = params if params is not None else IKParams()
+        root = subject.bodies[0]
+        source = str(subject.mjcf_path) if subject.mjcf_path is not None else "<MJCF text>"
+        if sum(1 for b in subject.bodies if b.parent is None) != 1:
+            raise MocapInputError(f"{source}: the humanoid must have a single root body under <worldbody>; keep only the humanoid in the subject MJCF (no floor or props bodies)")
+        path, temporary = subject.mjcf_file()
+        try:
+            if any(t == "free" for _, t in root.joints):
+                model = pin.buildModelFromMJCF(str(path))
+            else:
+                model = pin.buildModelFromMJCF(str(path), pin.JointModelFreeFlyer())
+        except Exception as exc:  # Pinocchio raises plain RuntimeError/ValueError on bad MJCF
+            raise MocapInputError(f"{source}: Pinocchio cannot build a model from this MJCF ({exc}); give the standalone humanoid MJCF of docs/humanoid_spec.md") from None
+        finally:
+            if temporary:
+                path.unlink(missing_ok=True)
+        if model.joints[1].shortname() != "JointModelFreeFlyer" or model.nq - 7 != model.nv - 6:
+            raise MocapInputError(f"{source}: the root body {root.name!r} must carry the only free joint and every other joint must be a hinge")
+        hinge_names = subject.hinge_names
+        if len(hinge_names) != model.nv - 6:
+            raise MocapInputError(f"{source}: {len(hinge_names)} hinges in the XML but Pinocchio built {model.nv - 6} 1-DoF joints; use only hinge joints below the free root")
+
+        # Marker frames: operational frames on their bodies.
+        self.marker_labels = subject.marker_names
+        body_frame = {b.name: model.getFrameId(b.name, pin.FrameType.BODY) for b in subject.bodies}
+        marker_joint, marker_local = [], []
+        self._marker_frames = []
+        for m in subject.markers:
+            parent = model.frames[body_frame[m.body]]
+            placement = parent.placement * pin.SE3(np.eye(3), m.offset_m)
+            fid = model.addFrame(pin.Frame(f"marker:{m.name}", parent.parentJoint, body_frame[m.body], placement, pin.FrameType.OP_FRAME))
+            self._marker_frames.append(fid)
+            marker_joint.append(parent.parentJoint)
+            marker_local.append(placement.translation.copy())
+        self.model = model
+        self.data = model.createData()
+        self._marker_joint = np.array(marker_joint, dtype=np.intp)  # (M,)
+        self._marker_local = np.array(marker_local).reshape(-1, 3)  # (M, 3) in the joint frame
+        self._body_frames = [body_frame[b.name] for b in subject.bodies]
+        # support[m, k]: tangent DoF k moves marker m (k is on the path root -> marker's joint).
+        support = np.zeros((len(marker_joint), model.nv), dtype=bool)
+        for i, j in enumerate(marker_joint):
+            for a in model.supports[j]:
+                if a > 0:
+                    jm = model.joints[a]
+                    support[i, jm.idx_v : jm.idx_v + jm.nv] = True
+        self._support = support
+        self._hinge_lower = np.asarray(model.lowerPositionLimit[7:], dtype=np.float64).copy()
+        self._hinge_upper = np.asarray(model.upperPositionLimit[7:], dtype=np.float64).copy()
+        self.tree = self._kinematic_tree(hinge_names)
+        self._cold = self._cold_start_tables()
+
+    # ------------------------------------------------------------------ model views
+    @property
+    def nq(self) -> int:
+        return int(self.model.nq)
+
+    def neutral(self) -> np.ndarray:
+        """``(nq,)`` T-pose at the origin (identity root)."""
+        return np.asarray(pin.neutral(self.model), dtype=np.float64)
+
+    def _kinematic_tree(self, hinge_names: list[str]) -> KinematicTree:
+        bodies = self.subject.bodies
+        index = {b.name: i for i, b in enumerate(bodies)}
+        parents = np.array([index[b.parent] if b.parent is not None else -1 for b in bodies], dtype=np.intp)
+        offsets = np.array([b.pos_m for b in bodies])
+        # Hinge axes from Pinocchio's world Jacobian at the rest pose: the angular part of each
+        # hinge column, expressed in its body's frame (the hinges of a body share its origin).
+        q0 = self.neutral()
+        pin.computeJointJacobians(self.model, self.data, q0)
+        pin.updateFramePlacements(self.model, self.data)
+        J = np.asarray(self.data.J)
+        hinge_bodies = np.zeros(len(hinge_names), dtype=np.intp)
+        axes = np.zeros((len(hinge_names), 3))
+        joint_to_bodies: dict[int, list[int]] = {}
+        for bi, fid in enumerate(self._body_frames):
+            joint_to_bodies.setdefault(self.model.frames[fid].parentJoint, []).append(bi)
+        for jid in range(2, self.model.njoints):
+            jm = self.model.joints[jid]
+            # The body that owns the joint is the first body attached to it.
+            bi = joint_to_bodies[jid][0]
+            R = np.asarray(self.data.oMf[self._body_frames[bi]].rotation)
+            for k in range(jm.nv):
+                h = jm.idx_v + k - 6
+                hinge_bodies[h] = bi
+                axes[h] = R.T @ J[3:, jm.idx_v + k]
+        return KinematicTree(
+            body_names=[b.name for b in bodies],
+            parents=parents,
+            offsets_m=offsets,
+            hinge_names=list(hinge_names),
+            hinge_bodies=hinge_bodies,
+            hinge_axes=axes,
+            lower_rad=self._hinge_lower.copy(),
+            upper_rad=self._hinge_upper.copy(),
+            rest_rotation=any(b.has_rotation for b in bodies),
+        )
+
+    def _cold_start_tables(self) -> "_ColdStartTables":
+        tree = self.tree
+        n_b, M = len(tree.body_names), len(self.marker_labels)
+        q0 = self.neutral()
+        pin.framesForwardKinematics(self.model, self.data, q0)
+        R0 = np.array([self.data.oMf[f].rotation for f in self._body_frames])
+        t0 = np.array([self.data.oMf[f].translation for f in self._body_frames])
+        marker_p0 = self._markers_and_jacobian(q0, with_jacobian=False)[0]
+        body_index = {n: i for i, n in enumerate(tree.body_names)}
+        marker_body = np.array([body_index[m.body] for m in self.subject.markers], dtype=np.intp)
+        depth = np.zeros(n_b, dtype=np.intp)
+        rest_R = np.tile(np.eye(3), (n_b, 1, 1))
+        rest_t = np.zeros((n_b, 3))
+        for b in range(1, n_b):
+            par = tree.parents[b]
+            depth[b] = depth[par] + 1
+            rest_R[b] = R0[par].T @ R0[b]
+            rest_t[b] = R0[par].T @ (t0[b] - t0[par])
+        grids: list[_HingeGrid | None] = []
+        hinge_index, own, kids, local_in_body, child_origin = [], [], [], [], []
+        marker_parent_body = tree.parents[marker_body]
+        for b in range(n_b):
+            idx = np.flatnonzero(tree.hinge_bodies == b)
+            hinge_index.append(idx)
+            if len(idx):
+                steps = _GRID_STEPS[min(len(idx), 3)]
+                lo = np.maximum(tree.lower_rad[idx], -np.pi)
+                hi = np.minimum(tree.upper_rad[idx], np.pi)
+                axes_values = [np.linspace(lo[k], hi[k], steps) for k in range(len(idx))]
+                values = np.stack(np.meshgrid(*axes_values, indexing="ij"), axis=-1).reshape(-1, len(idx))
+                rot = Rotation.identity(len(values))
+                for k, h in enumerate(idx):  # parent-to-child order: R = R_1 R_2 R_3
+                    rot = rot * Rotation.from_rotvec(values[:, k : k + 1] * tree.hinge_axes[h])
+                grids.append(_HingeGrid(values, rot.as_matrix()))
+            else:
+                grids.append(None)
+            own.append(marker_body == b)
+            kids.append(marker_parent_body == b)
+            local_in_body.append((marker_p0 - t0[b]) @ R0[b])
+            # Rest position of each marker's body origin in body b's frame (used for children).
+            child_origin.append((t0[marker_body] - t0[b]) @ R0[b])
+        child_radius = np.linalg.norm(marker_p0 - t0[marker_body], axis=1)
+        return _ColdStartTables(
+            marker_depth=depth[marker_body],
+            parent=tree.parents,
+            rest_R=rest_R,
+            rest_t=rest_t,
+            hinge_slice=hinge_index,
+            grids=grids,
+            own_markers=own,
+            child_markers=kids,
+            local_in_body=local_in_body,
+            child_origin=child_origin,
+            child_radius=child_radius,
+        )
+
+    # ------------------------------------------------------------------ kinematics
+    def _placements(self) -> np.ndarray:
+        """World poses ``(nj, 4, 4)`` of every joint frame (after a kinematics pass)."""
+        return np.array([m.homogeneous for m in self.data.oMi])
+
+    def _markers_and_jacobian(self, q: np.ndarray, with_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Marker positions ``(M, 3)`` m and their Jacobians ``(M, 3, nv)`` m per tangent unit.
+
+        One ``computeJointJacobians`` pass gives every joint column in the WORLD frame
+        (spatial velocity at the world origin, ``[v; w]``); the linear velocity of a point ``p``
+        is ``v + w x p``, restricted to the DoFs on the marker's path to the root. This equals
+        ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)[:3]`` of each marker frame (tested), for
+        all markers at once instead of one Python call per marker.
+        """
+        if with_jacobian:
+            pin.computeJointJacobians(self.model, self.data, q)
+        else:
+            pin.forwardKinematics(self.model, self.data, q)
+        T = self._placements()[self._marker_joint]  # (M, 4, 4)
+        p = np.einsum("mij,mj->mi", T[:, :3, :3], self._marker_local) + T[:, :3, 3]
+        if not with_jacobian:
+            return p, None
+        J = np.asarray(self.data.J)  # (6, nv)
+        # v + w x p = v - [p]x w, with [p]x the cross-product matrix of each marker.
+        S = np.zeros((len(p), 3, 3))
+        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
+        S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
+        jac = J[:3] - S @ J[3:]  # (M, 3, nv)
+        jac *= self._support[:, None, :]
+        return p, jac
+
+    def marker_positions(self, q: np.ndarray) -> np.ndarray:
+        """Model marker positions ``(F, M, 3)`` m (or ``(M, 3)``) for configurations ``q (F, nq)``."""
+        q = np.asarray(q, dtype=np.float64)
+        if q.ndim == 1:
+            return self._markers_and_jacobian(q, with_jacobian=False)[0]
+        return np.stack([self._markers_and_jacobian(qi, with_jacobian=False)[0] for qi in q])
+
+    def joint_centres(self, q: np.ndarray) -> np.ndarray:
+        """Body origins ``(J, 3)`` in world metres for one configuration ``q (nq,)``."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return np.array([self.data.oMf[f].translation for f in self._body_frames])
+
+    # ------------------------------------------------------------------ IK
+    def _cold_start(self, obs: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """Initial configuration for a frame with no usable previous solution.
+
+        1. Root pose by a rigid (Kabsch) fit of the T-pose markers nearest the root: those of
+           the root body, adding the bodies one level further away until at least three are
+           measured and not collinear.
+        2. Then, body by body from the root outwards, the body's hinges by a grid search over
+           their range. A candidate is scored on the body's own markers (squared distance to
+           their measurements) and on the markers of its child bodies, which are free to
+           rotate about the child's joint centre: a child's marker must lie at its fixed
+           distance from that centre (squared error of the distance). The best candidate is
+           kept. This lands every limb in the right basin (a T-pose start can leave a bent
+           knee or an arm behind the back in a local minimum); Levenberg-Marquardt then
+           refines all hinges together.
+        """
+        q = self.neutral()
+        model_p, _ = self._markers_and_jacobian(q, with_jacobian=False)
+        cs = self._cold
+        use = ok.copy()
+        for d in range(int(cs.marker_depth.max()) + 1):
+            use = ok & (cs.marker_depth <= d)
+            if use.sum() >= 3:
+                a = obs[use] - obs[use].mean(axis=0)
+                if np.linalg.svd(a, compute_uv=False)[1] > 1e-3 * max(1.0, np.abs(a).max()):
+                    break
+        a_c = obs[use].mean(axis=0)
+        b_c = model_p[use].mean(axis=0)
+        if use.sum() >= 2:
+            rot, _ = Rotation.align_vectors(obs[use] - a_c, model_p[use] - b_c)
+        else:
+            rot = Rotation.identity()
+        q[:3] = a_c - rot.apply(b_c)
+        q[3:7] = rot.as_quat()  # scipy and Pinocchio both use x y z w
+
+        # Body-by-body grid search (numpy forward kinematics of the rest-aligned tree).
+        n_b = len(cs.parent)
+        R_w = np.zeros((n_b, 3, 3))
+        t_w = np.zeros((n_b, 3))
+        R_w[0], t_w[0] = rot.as_matrix(), q[:3]
+        for b in range(1, n_b):
+            par = cs.parent[b]
+            R_p = R_w[par] @ cs.rest_R[b]
+            t_b = t_w[par] + R_w[par] @ cs.rest_t[b]
+            grid = cs.grids[b]
+            own = cs.own_markers[b] & ok
+            kid = cs.child_markers[b] & ok
+            if grid is not None and (own.any() or kid.any()):
+                R_c = R_p[None] @ grid.rotations  # (G, 3, 3)
+                cost = np.zeros(len(R_c))
+                if own.any():
+                    pred = R_c @ cs.local_in_body[b][own].T  # (G, 3, k), relative to t_b
+                    cost += ((pred - (obs[own] - t_b).T) ** 2).sum(axis=(1, 2))
+                if kid.any():
+                    centre = R_c @ cs.child_origin[b][kid].T  # (G, 3, k), relative to t_b
+                    dist = np.sqrt(((centre - (obs[kid] - t_b).T) ** 2).sum(axis=1))  # (G, k)
+                    cost += ((dist - cs.child_radius[kid]) ** 2).sum(axis=1)
+                best = int(np.argmin(cost))
+                q[7 + cs.hinge_slice[b]] = grid.values[best]
+                R_w[b] = R_c[best]
+            else:
+                R_w[b] = R_p
+            t_w[b] = t_b
+        return q
+
+    def _solve_frame(self, obs: np.ndarray, ok: np.ndarray, q0: np.ndarray, prior: np.ndarray, iterations: int) -> tuple[np.ndarray, float, int, np.ndarray]:
+        """Levenberg-Marquardt from ``q0``; returns ``(q, rms_m, iterations, hessian)``."""
+        p = self.params
+        model = self.model
+        nv = model.nv
+        lam = p.regularization_m_per_rad
+        lam2 = lam * lam
+        lo, hi = self._hinge_lower, self._hinge_upper
+        q = q0.copy()
+        q[7:] = np.clip(q[7:], lo, hi)
+
+        def evaluate(qc: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+            pos, jac = self._markers_and_jacobian(qc)
+            r = (pos[ok] - obs[ok]).reshape(-1)
+            reg = qc[7:] - prior
+            return float(r @ r + lam2 * (reg @ reg)), r, jac[ok].reshape(-1, nv)
+
+        cost, r, Jr = evaluate(q)
+        mu = p.initial_damping
+        it = 0
+        H = Jr.T @ Jr
+        H[6:, 6:] += lam2 * np.eye(nv - 6)
+        for it in range(1, iterations + 1):
+            g = Jr.T @ r
+            g[6:] += lam2 * (q[7:] - prior)
+            H = Jr.T @ Jr
+            H[6:, 6:] += lam2 * np.eye(nv - 6)
+            improved = False
+            for _ in range(12):
+                A = H + mu * np.diag(np.diag(H) + 1e-9)
+                dq = -np.linalg.solve(A, g)
+                # Active set: hinges at a limit whose step points outwards stay there.
+                h = dq[6:]
+                active = ((q[7:] <= lo + 1e-9) & (h < 0)) | ((q[7:] >= hi - 1e-9) & (h > 0))
+                if active.any():
+                    free = np.ones(nv, dtype=bool)
+                    free[6:][active] = False
+                    dq = np.zeros(nv)
+                    dq[free] = -np.linalg.solve(A[np.ix_(free, free)], g[free])
+                q_new = pin.integrate(model, q, dq)
+                q_new[7:] = np.clip(q_new[7:], lo, hi)
+                cost_new, r_new, J_new = evaluate(q_new)
+                if cost_new < cost:
+                    q, r, Jr = q_new, r_new, J_new
+                    step = float(np.linalg.norm(dq))
+                    converged = cost - cost_new <= 1e-9 * cost or step < p.step_tolerance
+                    cost = cost_new
+                    mu = max(mu / 3.0, 1e-12)
+                    improved = True
+                    break
+                mu *= 4.0
+            if not improved or converged:
+                break
+        H = Jr.T @ Jr
+        H[6:, 6:] += lam2 * np.eye(nv - 6)
+        n = max(int(ok.sum()), 1)
+        rms = float(np.sqrt((r @ r) / n))
+        return q, rms, it, H
+
+    def solve(self, traj: Trajectories) -> SkeletonFit:
+        """Fit every frame of ``traj`` (markers matched by label; unknown labels ignored).
+
+        Parameters
+        ----------
+        traj : Trajectories
+            ``(F, M', 3)`` metres; NaN gaps are skipped per frame.
+
+        Returns
+        -------
+        SkeletonFit
+        """
+        p = self.params
+        labels = self.marker_labels
+        index = {n: i for i, n in enumerate(traj.labels)}
+        common = [n for n in labels if n in index]
+        if not common:
+            raise MocapInputError(
+                f"none of the trajectory labels {list(traj.labels)[:8]}... is a marker of subject {self.subject.name!r} "
+                f"({labels[:8]}...); give the subject file whose marker names match the trajectories"
+            )
+        F, M = len(traj.times), len(labels)
+        obs_all = np.full((F, M, 3), np.nan)
+        cols = [labels.index(n) for n in common]
+        obs_all[:, cols] = traj.xyz[:, [index[n] for n in common]]
+        finite = np.isfinite(obs_all).all(axis=2)  # (F, M)
+
+        nq, H_n, J_n = self.model.nq, self.model.nv - 6, len(self.subject.bodies)
+        q_out = np.full((F, nq), np.nan)
+        centres = np.full((F, J_n, 3), np.nan)
+        errors = np.full((F, M), np.nan)
+        std = np.full((F, H_n), np.nan)
+        iters = np.zeros(F, dtype=np.int64)
+        valid = finite.sum(axis=1) >= p.min_markers
+        noise2 = p.marker_noise_m**2
+        q_prev: np.ndarray | None = None
+        for f in range(F):
+            if not valid[f]:
+                q_prev = None  # after a gap, start cold again
+                continue
+            obs, ok = obs_all[f], finite[f]
+            if q_prev is None:
+                q0 = self._cold_start(obs, ok)
+                q, rms, it, H = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
+            else:
+                q, rms, it, H = self._solve_frame(obs, ok, q_prev, q_prev[7:], p.max_iterations)
+                if rms > p.restart_residual_m:
+                    q0 = self._cold_start(obs, ok)
+                    q_c, rms_c, it_c, H_c = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
+                    it += it_c
+                    if rms_c < rms:
+                        q, rms, H = q_c, rms_c, H_c
+            iters[f] = it
+            q_out[f] = q
+            q_prev = q
+            pos = self.marker_positions(q)
+            errors[f, ok] = 1000.0 * np.linalg.norm(pos[ok] - obs[ok], axis=1)
+            centres[f] = self.joint_centres(q)
+            try:
+                cov = noise2 * np.linalg.inv(H)
+                std[f] = np.sqrt(np.clip(np.diag(cov)[6:], 0.0, None))
+            except np.linalg.LinAlgError:
+                pass
+        qpos = mujoco_from_pinocchio_q(q_out)
+        measured = np.isfinite(errors)
+        sq = np.where(measured, errors, 0.0) ** 2
+        rms_mm = np.full(F, np.nan)
+        rms_mm[valid] = np.sqrt(sq[valid].sum(axis=1) / np.maximum(measured[valid].sum(axis=1), 1))
+        return SkeletonFit(
+            times=np.asarray(traj.times, dtype=np.float64).copy(),
+            q=q_out,
+            qpos=qpos,
+            hinge_names=list(self.tree.hinge_names),
+            joint_angles_rad=qpos[:, 7:].copy(),
+            body_names=list(self.tree.body_names),
+            joint_centres_m=centres,
+            marker_labels=list(labels),
+            marker_errors_mm=errors,
+            marker_rms_mm=rms_mm,
+            n_markers=finite.sum(axis=1).astype(np.int64),
+            iterations=iters,
+            angle_std_rad=std,
+            valid=valid,
+            tree=self.tree,
+        )
+
+
+def solve_skeleton(traj: Trajectories, subject: SubjectModel, params: IKParams | None = None) -> SkeletonFit:
+    """Fit the subject's humanoid to labelled 3D markers, frame by frame.
+
+    Parameters
+    ----------
+    traj : Trajectories
+        Labelled markers, ``(F, M, 3)`` metres, NaN in gaps.
+    subject : SubjectModel
+        Humanoid MJCF and marker placement (labels matched by name).
+    params : IKParams, optional
+
+    Returns
+    -------
+    SkeletonFit
+    """
+    return SkeletonSolver(subject, params).solve(traj)
