@@ -11,7 +11,7 @@ Inside the pipeline: world Z up, metres, seconds (``docs/humanoid_spec.md``). Fi
   ``POINT:LABELS``. The 4th word of each point holds the residual as C3D defines it: ``-1``
   for a gap, ``0`` for a point filled by interpolation, ``> 0`` for a measured point. The
   pipeline's residual is the mean *reprojection* residual in pixels, so that is what is
-  stored (resolution 0.01 px, saturating at 2.55 px, ``POINT:SCALE = -0.01``), and a
+  stored (in steps of 0.01 px, truncated, saturating at 2.55 px, ``POINT:SCALE = -0.01``), and a
   ``SIMBENCH`` parameter group says so (``RESIDUAL_UNITS = "px"``) and keeps the exact time
   of the first frame (``FIRST_TIME_S``). Other programs ignore that group.
 * **TRC** (OpenSim): millimetres, OpenSim's axes by default: ``X`` forward, ``Y`` up, ``Z``
@@ -244,7 +244,7 @@ def write_trc(
     table = pd.DataFrame(xyz.reshape(F, 3 * M) * 1000.0)
     table.insert(0, "time", np.asarray(traj.times, dtype=np.float64))
     table.insert(0, "frame", np.arange(1, F + 1))
-    body = table.to_csv(sep="\t", header=False, index=False, na_rep="NaN", float_format="%.6f", lineterminator="\n")
+    body = table.to_csv(sep="\t", header=False, index=False, na_rep="NaN", float_format="%.10g", lineterminator="\n")
     with _atomic_target(path) as tmp:
         tmp.write_text("\n".join(header) + "\n" + body)
     return path
@@ -341,7 +341,7 @@ def write_csv(path: str | os.PathLike, traj: Trajectories) -> Path:
     flags = pd.DataFrame(np.asarray(traj.filled, dtype=np.int8), columns=[f"{label}_filled" for label in traj.labels])
     table = pd.concat([pd.DataFrame({"frame": np.arange(F), "time_s": np.asarray(traj.times, dtype=np.float64)}), coords, flags], axis=1)
     with _atomic_target(path) as tmp:
-        table.to_csv(tmp, index=False, na_rep="", float_format="%.6f", lineterminator="\n")
+        table.to_csv(tmp, index=False, na_rep="", float_format="%.10g", lineterminator="\n")
     return path
 
 
