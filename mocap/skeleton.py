@@ -185,6 +185,17 @@ class SkeletonFit:
     valid: np.ndarray
     tree: KinematicTree = field(repr=False)
 
+    def well_constrained(self, max_std_deg: float = 1.0) -> np.ndarray:
+        """``(H,)`` bool: hinges whose median predicted angle std (solved frames) is below ``max_std_deg``.
+
+        With the default 1 mm marker noise and 1 deg, these are the hinges the marker set
+        determines; the others (e.g. how the trunk's axial twist splits between lumbar and
+        thorax when the abdomen carries no marker) are set by the regularisation.
+        """
+        if not self.valid.any():
+            return np.zeros(len(self.hinge_names), dtype=bool)
+        return np.degrees(np.median(self.angle_std_rad[self.valid], axis=0)) < max_std_deg
+
     def angles_by_name(self) -> dict[str, np.ndarray]:
         """``{hinge name: (F,) angle in rad}``."""
         return {n: self.joint_angles_rad[:, i] for i, n in enumerate(self.hinge_names)}
@@ -529,17 +540,20 @@ class SkeletonSolver:
             reg = qc[7:] - prior
             return float(r @ r + lam2 * (reg @ reg)), r, jac[ok].reshape(-1, nv)
 
+        def normal_matrix(J: np.ndarray) -> np.ndarray:
+            H = J.T @ J
+            H[hinge_diag, hinge_diag] += lam2
+            return H
+
+        hinge_diag = np.arange(6, nv)
         cost, r, Jr = evaluate(q)
         mu = p.initial_damping
         it = 0
-        H = Jr.T @ Jr
-        H[6:, 6:] += lam2 * np.eye(nv - 6)
         for it in range(1, iterations + 1):
             g = Jr.T @ r
             g[6:] += lam2 * (q[7:] - prior)
-            H = Jr.T @ Jr
-            H[6:, 6:] += lam2 * np.eye(nv - 6)
-            improved = False
+            H = normal_matrix(Jr)
+            converged = True  # stays True if no damping makes the cost decrease
             for _ in range(12):
                 A = H + mu * np.diag(np.diag(H) + 1e-9)
                 dq = -np.linalg.solve(A, g)
@@ -555,18 +569,14 @@ class SkeletonSolver:
                 q_new[7:] = np.clip(q_new[7:], lo, hi)
                 cost_new, r_new, J_new = evaluate(q_new)
                 if cost_new < cost:
-                    q, r, Jr = q_new, r_new, J_new
-                    step = float(np.linalg.norm(dq))
-                    converged = cost - cost_new <= 1e-9 * cost or step < p.step_tolerance
-                    cost = cost_new
+                    converged = cost - cost_new <= 1e-9 * cost or float(np.linalg.norm(dq)) < p.step_tolerance
+                    q, r, Jr, cost = q_new, r_new, J_new, cost_new
                     mu = max(mu / 3.0, 1e-12)
-                    improved = True
                     break
                 mu *= 4.0
-            if not improved or converged:
+            if converged:
                 break
-        H = Jr.T @ Jr
-        H[6:, 6:] += lam2 * np.eye(nv - 6)
+        H = normal_matrix(Jr)
         n = max(int(ok.sum()), 1)
         rms = float(np.sqrt((r @ r) / n))
         return q, rms, it, H

@@ -143,7 +143,8 @@ def test_recovers_smooth_motion_from_noisy_markers(humanoid):
     np.testing.assert_allclose(np.linalg.norm(fit.qpos[:, 3:7], axis=1), 1.0, atol=1e-9)
     rmse = _angle_rmse_deg(fit, qpos)
     std_deg = np.degrees(np.median(fit.angle_std_rad, axis=0))
-    well = std_deg < WELL_CONSTRAINED_STD_DEG
+    well = fit.well_constrained(WELL_CONSTRAINED_STD_DEG)
+    np.testing.assert_array_equal(well, std_deg < WELL_CONSTRAINED_STD_DEG)
     names_well = [n for n, w in zip(fit.hinge_names, well) if w]
     print(f"\nwell-constrained hinges: {len(names_well)}/33; angle RMSE over them {np.sqrt(np.mean(rmse[well] ** 2)):.2f} deg, "
           f"max {rmse[well].max():.2f} deg ({fit.hinge_names[int(np.argmax(np.where(well, rmse, -1)))]})")
