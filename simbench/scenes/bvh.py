@@ -1,0 +1,968 @@
+"""BVH motion files: parsing (:func:`load_bvh`) and retargeting onto the humanoid (:func:`retarget_bvh`).
+
+Parsing is tolerant of what real files contain (mixed CRLF/LF line endings, any rotation
+channel order per joint, 6-channel roots, 3- or 6-channel joints, ``End Site`` blocks) and
+strict about what makes a file unusable: every error names the file, the line and the fix.
+
+Conventions of a BVH file, as read here
+---------------------------------------
+- A joint's local transform is ``T(offset) @ R`` where ``R`` is the product of its rotation
+  channels in the order they are listed (``Zrotation Yrotation Xrotation`` ->
+  ``Rz @ Ry @ Rx``), angles in degrees.
+- Position channels (``Xposition`` ...) *replace* the matching component of the offset (the
+  usual reading: roots have a zero offset, and exporters that give every joint 6 channels write
+  the offset itself into the position channels).
+- Units are whatever the file uses; :func:`retarget_bvh` finds the scale from the skeleton's
+  height, so CMU units (1 unit = 1/0.45 inch = 5.644 cm), centimetres, inches or metres all work.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from mocap.errors import InputFileError
+from simbench.scenes.humanoid import HINGE_NAMES, BodyParams
+from simbench.scenes.motions import HumanoidKinematics, Motion
+
+__all__ = [
+    "BvhClip",
+    "BvhPose",
+    "RetargetedBvh",
+    "ROLE_ALIASES",
+    "load_bvh",
+    "map_bvh_joints",
+    "retarget_bvh",
+    "retarget_bvh_keys",
+]
+
+_ROTATION_CHANNELS = {"xrotation": 0, "yrotation": 1, "zrotation": 2}
+_POSITION_CHANNELS = {"xposition": 0, "yposition": 1, "zposition": 2}
+
+
+@dataclass(frozen=True)
+class BvhPose:
+    """World-space forward kinematics of a BVH skeleton (file units, file axes).
+
+    Attributes
+    ----------
+    positions : (F, J, 3) float
+        Joint origins in file units.
+    rotations : (F, J, 3, 3) float
+        Joint frames: world-from-joint rotation matrices.
+    end_positions : (F, E, 3) float
+        ``End Site`` points in file units.
+    """
+
+    positions: np.ndarray
+    rotations: np.ndarray
+    end_positions: np.ndarray
+
+
+@dataclass(frozen=True)
+class BvhClip:
+    """A parsed BVH file: skeleton hierarchy plus the motion channels of every frame.
+
+    Attributes
+    ----------
+    path : Path
+        File it was read from (used in error messages).
+    joint_names : tuple[str, ...], length J
+        Joints in file order (depth first, so a parent always precedes its children).
+    parents : (J,) int
+        Index of each joint's parent; -1 for the root.
+    offsets : (J, 3) float
+        Joint origin in its parent's frame, file units.
+    channels : tuple[tuple[str, ...], ...], length J
+        Channel names of each joint as written (e.g. ``("Zrotation", "Yrotation", "Xrotation")``).
+    channel_start : (J,) int
+        Column of each joint's first channel in ``frames``.
+    end_site_parents : (E,) int
+        Joint that carries each ``End Site``.
+    end_site_offsets : (E, 3) float
+        ``End Site`` offsets in the carrying joint's frame, file units.
+    frame_time_s : float
+        Time between frames in seconds (1/120 for CMU).
+    frames : (F, n_channels) float
+        Channel values per frame: positions in file units, rotations in degrees.
+    """
+
+    path: Path
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    channels: tuple[tuple[str, ...], ...]
+    channel_start: np.ndarray
+    end_site_parents: np.ndarray
+    end_site_offsets: np.ndarray
+    frame_time_s: float
+    frames: np.ndarray
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.joint_names)
+
+    @property
+    def duration_s(self) -> float:
+        """Time from the first to the last frame, seconds."""
+        return (self.n_frames - 1) * self.frame_time_s
+
+    def joint_index(self, name: str) -> int:
+        """Index of the joint called ``name`` (exact match)."""
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise InputFileError(
+                self.path,
+                f"no joint named '{name}'",
+                f"use one of: {', '.join(self.joint_names)}",
+            ) from None
+
+    def children(self, joint: int) -> list[int]:
+        """Indices of the direct child joints of ``joint``."""
+        return [int(j) for j in np.flatnonzero(self.parents == joint)]
+
+    def local_transforms(self, frames: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Local rotation and translation of every joint.
+
+        Parameters
+        ----------
+        frames : (F, n_channels) float, optional
+            Channel values; default: all frames of the clip.
+
+        Returns
+        -------
+        rotations : (F, J, 3, 3) float
+            Parent-from-joint rotations.
+        translations : (F, J, 3) float
+            Joint origins in the parent frame, file units.
+        """
+        values = self.frames if frames is None else np.atleast_2d(np.asarray(frames, dtype=float))
+        n = values.shape[0]
+        rotations = np.broadcast_to(np.eye(3), (n, self.n_joints, 3, 3)).copy()
+        translations = np.broadcast_to(self.offsets, (n, self.n_joints, 3)).copy()
+        for j, names in enumerate(self.channels):
+            start = int(self.channel_start[j])
+            for k, channel in enumerate(names):
+                key = channel.lower()
+                column = values[:, start + k]
+                if key in _POSITION_CHANNELS:
+                    translations[:, j, _POSITION_CHANNELS[key]] = column
+                else:
+                    # Compose in listed order: R = R_first @ R_second @ ... (intrinsic).
+                    rotations[:, j] = rotations[:, j] @ _axis_rotation(_ROTATION_CHANNELS[key], np.deg2rad(column))
+        return rotations, translations
+
+    def forward_kinematics(self, frames: np.ndarray | None = None) -> BvhPose:
+        """World pose of every joint and ``End Site`` (file units and axes).
+
+        Parameters
+        ----------
+        frames : (F, n_channels) float, optional
+            Channel values; default: all frames of the clip.
+        """
+        local_r, local_t = self.local_transforms(frames)
+        world_r = np.empty_like(local_r)
+        world_p = np.empty_like(local_t)
+        for j, parent in enumerate(self.parents):
+            if parent < 0:
+                world_r[:, j] = local_r[:, j]
+                world_p[:, j] = local_t[:, j]
+            else:
+                world_r[:, j] = world_r[:, parent] @ local_r[:, j]
+                world_p[:, j] = world_p[:, parent] + np.einsum("fij,fj->fi", world_r[:, parent], local_t[:, j])
+        ends = world_p[:, self.end_site_parents] + np.einsum(
+            "feij,ej->fei", world_r[:, self.end_site_parents], self.end_site_offsets
+        )
+        return BvhPose(positions=world_p, rotations=world_r, end_positions=ends)
+
+
+def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(N, 3, 3)`` about coordinate axis 0/1/2 by ``angle`` (N,) radians."""
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros(angle.shape + (3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out[..., axis, axis] = 1.0
+    out[..., i, i] = c
+    out[..., j, j] = c
+    out[..., i, j] = -s
+    out[..., j, i] = s
+    return out
+
+
+class _Tokens:
+    """Whitespace tokens of the HIERARCHY section, each with its 1-based line number."""
+
+    def __init__(self, path: Path, lines: list[str]) -> None:
+        self.path = path
+        self.items: list[tuple[str, int]] = []
+        for number, line in enumerate(lines, start=1):
+            if line.strip().upper() == "MOTION":
+                self.motion_line = number
+                break
+            self.items.extend((token, number) for token in line.split())
+        else:
+            self.motion_line = 0
+        self.pos = 0
+        self.last_line = len(lines)
+
+    def error(self, problem: str, line: int | None = None, fix: str = "") -> InputFileError:
+        line = self.current_line if line is None else line
+        return InputFileError(
+            self.path,
+            problem,
+            fix or "check the HIERARCHY section against the BVH format (ROOT/JOINT name { OFFSET x y z CHANNELS n ... })",
+            field=f"line {line}",
+        )
+
+    @property
+    def current_line(self) -> int:
+        if self.pos < len(self.items):
+            return self.items[self.pos][1]
+        return self.motion_line or self.last_line
+
+    def next(self, what: str) -> str:
+        if self.pos >= len(self.items):
+            raise self.error(f"file ends while expecting {what}")
+        token = self.items[self.pos][0]
+        self.pos += 1
+        return token
+
+    def expect(self, word: str) -> None:
+        line = self.current_line
+        token = self.next(f"'{word}'")
+        if token.upper() != word.upper():
+            raise self.error(f"expected '{word}', found '{token}'", line)
+
+    def floats(self, n: int, what: str) -> np.ndarray:
+        line = self.current_line
+        values = [self.next(what) for _ in range(n)]
+        try:
+            out = np.array([float(v) for v in values])
+        except ValueError:
+            raise self.error(f"{what} needs {n} numbers, found {' '.join(values)}", line) from None
+        if not np.all(np.isfinite(out)):
+            raise self.error(f"{what} has a non-finite value: {' '.join(values)}", line)
+        return out
+
+
+def load_bvh(path: str | Path) -> BvhClip:
+    """Read a BVH file.
+
+    Parameters
+    ----------
+    path : str or Path
+        BVH file (any line endings, any channel order).
+
+    Returns
+    -------
+    BvhClip
+
+    Raises
+    ------
+    InputFileError
+        If the file is missing or malformed; the message names the file and the line.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as exc:
+        raise InputFileError(path, f"cannot read the file ({exc.strerror})", "give the path of an existing BVH file") from None
+    lines = text.splitlines()  # handles \n, \r\n, lone \r and mixtures of them
+    tokens = _Tokens(path, lines)
+
+    first = tokens.next("'HIERARCHY'") if tokens.items else ""
+    if first.upper() != "HIERARCHY":
+        raise InputFileError(path, f"does not start with HIERARCHY (found '{first[:40]}')", "give a BVH motion file", field="line 1")
+
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[np.ndarray] = []
+    channels: list[tuple[str, ...]] = []
+    end_parents: list[int] = []
+    end_offsets: list[np.ndarray] = []
+
+    def read_name() -> str:
+        line = tokens.current_line
+        parts: list[str] = []
+        while tokens.pos < len(tokens.items) and tokens.items[tokens.pos][0] != "{":
+            if tokens.items[tokens.pos][1] != line:
+                break
+            parts.append(tokens.next("a joint name"))
+        if not parts:
+            raise tokens.error("joint without a name", line)
+        return " ".join(parts)
+
+    def read_joint(parent: int) -> None:
+        index = len(names)
+        names.append(read_name())
+        parents.append(parent)
+        offsets.append(np.zeros(3))
+        channels.append(())
+        tokens.expect("{")
+        seen_offset = False
+        while True:
+            line = tokens.current_line
+            token = tokens.next(f"'}}' closing joint '{names[index]}'")
+            key = token.upper()
+            if key == "}":
+                break
+            if key == "OFFSET":
+                offsets[index] = tokens.floats(3, f"OFFSET of joint '{names[index]}'")
+                seen_offset = True
+            elif key == "CHANNELS":
+                count_token = tokens.next("the channel count")
+                try:
+                    count = int(count_token)
+                except ValueError:
+                    raise tokens.error(f"CHANNELS count '{count_token}' is not an integer", line) from None
+                found = tuple(tokens.next("a channel name") for _ in range(count))
+                bad = [c for c in found if c.lower() not in _ROTATION_CHANNELS and c.lower() not in _POSITION_CHANNELS]
+                if bad:
+                    raise tokens.error(
+                        f"unknown channel '{bad[0]}' in joint '{names[index]}'",
+                        line,
+                        "channels must be Xposition, Yposition, Zposition, Xrotation, Yrotation or Zrotation",
+                    )
+                channels[index] = found
+            elif key == "JOINT":
+                read_joint(index)
+            elif key == "END":
+                tokens.expect("Site")
+                tokens.expect("{")
+                tokens.expect("OFFSET")
+                end_offsets.append(tokens.floats(3, f"End Site OFFSET of joint '{names[index]}'"))
+                end_parents.append(index)
+                tokens.expect("}")
+            elif key == "ROOT":
+                raise tokens.error("a second ROOT inside a joint", line)
+            else:
+                raise tokens.error(f"unexpected '{token}' in joint '{names[index]}'", line)
+        if not seen_offset:
+            raise tokens.error(f"joint '{names[index]}' has no OFFSET", line)
+
+    line = tokens.current_line
+    root_word = tokens.next("'ROOT'")
+    if root_word.upper() != "ROOT":
+        raise tokens.error(f"expected 'ROOT', found '{root_word}'", line)
+    read_joint(-1)
+    if tokens.pos < len(tokens.items):
+        raise tokens.error(
+            f"unexpected '{tokens.items[tokens.pos][0]}' after the root joint's closing brace",
+            fix="only one ROOT is supported; check that the braces balance",
+        )
+    if not tokens.motion_line:
+        raise tokens.error("no MOTION section", tokens.last_line, "a BVH file needs a MOTION line after the HIERARCHY")
+
+    channel_counts = np.array([len(c) for c in channels])
+    channel_start = np.concatenate([[0], np.cumsum(channel_counts)[:-1]]).astype(int)
+    n_channels = int(channel_counts.sum())
+
+    n_frames, frame_time, data_start = _read_motion_header(path, lines, tokens.motion_line)
+    frames = _read_frames(path, lines, data_start, n_frames, n_channels)
+
+    return BvhClip(
+        path=path,
+        joint_names=tuple(names),
+        parents=np.array(parents, dtype=int),
+        offsets=np.array(offsets, dtype=float).reshape(-1, 3),
+        channels=tuple(channels),
+        channel_start=channel_start,
+        end_site_parents=np.array(end_parents, dtype=int),
+        end_site_offsets=np.array(end_offsets, dtype=float).reshape(-1, 3),
+        frame_time_s=frame_time,
+        frames=frames,
+    )
+
+
+def _read_motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float, int]:
+    """Parse ``Frames: N`` and ``Frame Time: dt``; return them and the 0-based index of the first data line."""
+    index = motion_line  # 0-based index of the line after MOTION
+    header: dict[str, tuple[str, int]] = {}
+    while index < len(lines) and len(header) < 2:
+        stripped = lines[index].strip()
+        index += 1
+        if not stripped:
+            continue
+        label, _, value = stripped.partition(":")
+        key = "".join(label.lower().split())
+        if key not in ("frames", "frametime"):
+            raise InputFileError(
+                path, f"expected 'Frames:' or 'Frame Time:', found '{stripped[:40]}'",
+                "write 'Frames: N' and 'Frame Time: seconds' after MOTION", field=f"line {index}",
+            )
+        header[key] = (value.strip(), index)
+    for key, label in (("frames", "Frames:"), ("frametime", "Frame Time:")):
+        if key not in header:
+            raise InputFileError(path, f"no '{label}' line after MOTION", f"add '{label}' after MOTION", field=f"line {motion_line}")
+    value, line = header["frames"]
+    try:
+        n_frames = int(value)
+    except ValueError:
+        n_frames = -1
+    if n_frames < 1:
+        raise InputFileError(path, f"Frames: '{value}' is not a positive integer", "give the number of frames", field=f"line {line}")
+    value, line = header["frametime"]
+    try:
+        frame_time = float(value)
+    except ValueError:
+        frame_time = float("nan")
+    if not (np.isfinite(frame_time) and frame_time > 0):
+        raise InputFileError(path, f"Frame Time: '{value}' is not a positive number of seconds", "e.g. 'Frame Time: 0.0083333' for 120 Hz", field=f"line {line}")
+    return n_frames, frame_time, index
+
+
+def _read_frames(path: Path, lines: list[str], start: int, n_frames: int, n_channels: int) -> np.ndarray:
+    """Motion rows ``(n_frames, n_channels)``; errors name the first bad line."""
+    rows = [(number, line) for number, line in enumerate(lines[start:], start=start + 1) if line.strip()]
+    if len(rows) < n_frames:
+        raise InputFileError(
+            path, f"'Frames: {n_frames}' but only {len(rows)} data lines",
+            "correct the Frames: line or restore the missing frames", field=f"line {len(lines)}",
+        )
+    if len(rows) > n_frames:
+        number = rows[n_frames][0]
+        raise InputFileError(
+            path, f"'Frames: {n_frames}' but {len(rows)} data lines",
+            "correct the Frames: line or remove the extra lines", field=f"line {number}",
+        )
+    split = [line.split() for _, line in rows]
+    counts = np.fromiter((len(s) for s in split), dtype=int, count=len(split))
+    bad = np.flatnonzero(counts != n_channels)
+    if bad.size:
+        number = rows[int(bad[0])][0]
+        raise InputFileError(
+            path, f"frame has {counts[bad[0]]} values but the HIERARCHY declares {n_channels} channels",
+            "every frame line needs one value per channel", field=f"line {number}",
+        )
+    try:
+        frames = np.array([v for s in split for v in s], dtype=float).reshape(n_frames, n_channels)
+    except ValueError:
+        frames = None
+    if frames is None or not np.all(np.isfinite(frames)):
+        for (number, _), values in zip(rows, split):
+            try:
+                ok = np.all(np.isfinite(np.array(values, dtype=float)))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise InputFileError(path, "frame has a value that is not a finite number", "fix or remove that frame", field=f"line {number}")
+    return frames
+
+
+# ======================================================================================
+# retargeting onto the simbench humanoid
+# ======================================================================================
+
+# Candidate BVH joint names for each humanoid role, tried in order (compared after
+# _normalise_name: case, separators and namespace prefixes like "mixamorig:" ignored).
+# Order matters where schemes disagree: MotionBuilder-style files call the clavicle
+# "LeftShoulder" and the upper arm "LeftArm"; 3dsMax-style files call the upper arm
+# "LeftShoulder" (clavicle "LeftCollar") - so "LeftArm" is tried first.
+_LEFT_ALIASES: dict[str, tuple[str, ...]] = {
+    "upperarm": ("LeftArm", "LeftUpArm", "LeftUpperArm", "lShldr", "L_UpperArm", "UpperArm_L", "LeftShoulder"),
+    "forearm": ("LeftForeArm", "LeftLowArm", "LeftLowerArm", "lForeArm", "L_Forearm", "ForeArm_L", "LeftElbow"),
+    "hand": ("LeftHand", "LeftWrist", "lHand", "L_Hand", "Hand_L"),
+    "thigh": ("LeftUpLeg", "LeftUpperLeg", "LeftThigh", "lThigh", "L_Thigh", "Thigh_L", "LeftHip"),
+    "shank": ("LeftLeg", "LeftLowLeg", "LeftLowerLeg", "LeftShin", "lShin", "L_Calf", "Shin_L", "LeftKnee"),
+    "foot": ("LeftFoot", "LeftAnkle", "lFoot", "L_Foot", "Foot_L"),
+}
+_TRUNK_ALIASES: dict[str, tuple[str, ...]] = {
+    "abdomen": ("Spine", "Abdomen", "Chest", "Spine0", "LowerBack"),
+    "thorax": ("Spine2", "Spine1", "Chest2", "UpperChest", "Chest"),
+    "head": ("Head",),
+}
+
+
+def _right_name(name: str) -> str:
+    for left, right in (("Left", "Right"), ("L_", "R_"), ("_L", "_R"), ("l", "r")):
+        if name.startswith(left) or (left.startswith("_") and name.endswith(left)):
+            return name.replace(left, right, 1) if name.startswith(left) else name[: -len(left)] + right
+    return name
+
+
+ROLE_ALIASES: Mapping[str, tuple[str, ...]] = MappingProxyType(
+    {
+        **_TRUNK_ALIASES,
+        **{f"{seg}_l": names for seg, names in _LEFT_ALIASES.items()},
+        **{f"{seg}_r": tuple(_right_name(n) for n in names) for seg, names in _LEFT_ALIASES.items()},
+    }
+)
+"""BVH joint names accepted for each humanoid body (first match wins); ``pelvis`` is the ROOT."""
+
+_ROLES = ("pelvis", "abdomen", "thorax", "head", "upperarm_l", "forearm_l", "hand_l", "upperarm_r", "forearm_r", "hand_r",
+          "thigh_l", "shank_l", "foot_l", "thigh_r", "shank_r", "foot_r")
+
+# (upper, middle, end, middle hinge, end hinges) of each limb, as in docs/humanoid_spec.md
+_LIMBS = (
+    ("upperarm_l", "forearm_l", "hand_l", "elbow_l", ("wrist_l_x", "wrist_l_z"), "thorax"),
+    ("upperarm_r", "forearm_r", "hand_r", "elbow_r", ("wrist_r_x", "wrist_r_z"), "thorax"),
+    ("thigh_l", "shank_l", "foot_l", "knee_l", ("ankle_l_y", "ankle_l_x"), "pelvis"),
+    ("thigh_r", "shank_r", "foot_r", "knee_r", ("ankle_r_y", "ankle_r_x"), "pelvis"),
+)
+_TRUNK = (("abdomen", "pelvis", "lumbar"), ("thorax", "abdomen", "thorax"), ("head", "thorax", "neck"))
+_AXIS_LETTER = "XYZ"
+
+# Bending weight of a limb: below sin(5 deg) of flexion the bend plane is undefined and the
+# upper segment's twist follows the BVH rotation; above sin(20 deg) it follows the bend plane.
+_BEND_SIN_LO, _BEND_SIN_HI = np.sin(np.deg2rad(5.0)), np.sin(np.deg2rad(20.0))
+
+
+def _normalise_name(name: str) -> str:
+    base = name.rsplit(":", 1)[-1]
+    return "".join(ch for ch in base.lower() if ch.isalnum())
+
+
+@dataclass(frozen=True)
+class RetargetedBvh:
+    """A BVH clip mapped onto the humanoid, as key poses plus what the mapping used.
+
+    Attributes
+    ----------
+    name : str
+    times_s : (K,) float
+        Key times from 0, seconds (the BVH frame times of the kept frames).
+    qpos : (K, 40) float
+        Key poses (MuJoCo qpos).
+    joint_map : dict[str, str]
+        Humanoid body -> BVH joint it follows.
+    frames : (K,) int
+        BVH frame index of each key.
+    scale_m_per_unit : float
+        Metres per BVH unit found from the skeleton's limb lengths.
+    world_from_file : (3, 3) float
+        Rotation from BVH axes to the bench world (Y-up to Z-up and the heading turn).
+    translation_m : (3,) float
+        Offset added after scaling and rotating: ``world = scale * world_from_file @ p + translation``.
+    kinematics : HumanoidKinematics
+    """
+
+    name: str
+    times_s: np.ndarray
+    qpos: np.ndarray
+    joint_map: dict[str, str]
+    frames: np.ndarray
+    scale_m_per_unit: float
+    world_from_file: np.ndarray
+    translation_m: np.ndarray
+    kinematics: HumanoidKinematics
+
+    def to_world(self, points: np.ndarray) -> np.ndarray:
+        """BVH-space points ``(..., 3)`` (file units and axes) to bench world metres."""
+        return self.scale_m_per_unit * np.asarray(points) @ self.world_from_file.T + self.translation_m
+
+    def motion(self) -> Motion:
+        """The clip as a :class:`Motion` (PCHIP / rotation-spline interpolation between keys)."""
+        return Motion.from_samples(self.name, self.times_s, self.qpos, self.kinematics, description=f"BVH {self.name}")
+
+
+def map_bvh_joints(clip: BvhClip, name_map: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Which BVH joint each humanoid body follows.
+
+    Parameters
+    ----------
+    clip : BvhClip
+    name_map : mapping, optional
+        Overrides: humanoid body name (e.g. ``"upperarm_l"``) -> BVH joint name.
+
+    Raises
+    ------
+    InputFileError
+        If a body has no matching joint or the matches do not form the expected chains.
+    """
+    by_norm: dict[str, str] = {}
+    for name in clip.joint_names:
+        by_norm.setdefault(_normalise_name(name), name)
+    overrides = dict(name_map or {})
+    unknown = sorted(set(overrides) - set(_ROLES))
+    if unknown:
+        raise InputFileError(clip.path, f"name_map has unknown humanoid bodies {unknown}", f"use keys among: {', '.join(_ROLES)}")
+    mapping = {"pelvis": clip.joint_names[0]}
+    missing = []
+    for role in _ROLES[1:]:
+        if role in overrides:
+            if overrides[role] not in clip.joint_names:
+                raise InputFileError(clip.path, f"name_map['{role}'] = '{overrides[role]}' is not a joint of the file",
+                                     f"use one of: {', '.join(clip.joint_names)}")
+            mapping[role] = overrides[role]
+            continue
+        taken = set(mapping.values())
+        found = next((by_norm[_normalise_name(c)] for c in ROLE_ALIASES[role]
+                      if _normalise_name(c) in by_norm and by_norm[_normalise_name(c)] not in taken), None)
+        if found is None:
+            missing.append(role)
+        else:
+            mapping[role] = found
+    if missing:
+        raise InputFileError(
+            clip.path,
+            f"no joint found for humanoid bodies {missing} (file joints: {', '.join(clip.joint_names)})",
+            "pass name_map={body: joint} for them; accepted names are in simbench.scenes.bvh.ROLE_ALIASES",
+        )
+    index = {role: clip.joint_index(name) for role, name in mapping.items()}
+    for role, parent_role in [(r, p) for r, p, _ in _TRUNK] + [(m, u) for u, m, *_ in _LIMBS] + [(e, m) for _, m, e, *_ in _LIMBS] \
+            + [(u, p) for u, _, _, _, _, p in _LIMBS]:
+        if not _is_descendant(clip.parents, index[role], index[parent_role]):
+            raise InputFileError(
+                clip.path,
+                f"joint '{mapping[role]}' (for {role}) is not below '{mapping[parent_role]}' (for {parent_role})",
+                "pass name_map={body: joint} to fix the mapping",
+            )
+    return mapping
+
+
+def _is_descendant(parents: np.ndarray, joint: int, ancestor: int) -> bool:
+    j = int(parents[joint])
+    while j >= 0:
+        if j == ancestor:
+            return True
+        j = int(parents[j])
+    return False
+
+
+def _chain_end(clip: BvhClip, pose_positions: np.ndarray, ends: np.ndarray, joint: int) -> np.ndarray:
+    """Position ``(F, 3)`` of the first point below ``joint`` that is not at the joint itself.
+
+    Follows the first child (or the End Site) until the offset is non-zero: CMU hands and
+    necks have zero-length helper joints (``LeftFingerBase``, ``lhand``, ``Neck``).
+    """
+    j = joint
+    while True:
+        kids = clip.children(j)
+        if kids:
+            j = kids[0]
+            if np.linalg.norm(clip.offsets[j]) > 1e-9:
+                return pose_positions[:, j]
+            continue
+        sites = np.flatnonzero(clip.end_site_parents == j)
+        if sites.size:
+            return ends[:, sites[0]]
+        raise InputFileError(clip.path, f"joint '{clip.joint_names[joint]}' has no child to give it a direction",
+                             "add an End Site or map the body to another joint with name_map")
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Smallest rotation matrix ``(3, 3)`` taking unit vector ``a`` to unit vector ``b``."""
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(np.dot(a, b))
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        perp = _unit(np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0]))
+        return Rotation.from_rotvec(np.pi * perp).as_matrix()
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def _rz(angle: float) -> np.ndarray:
+    return Rotation.from_euler("z", angle).as_matrix()
+
+
+def _heading(forward: np.ndarray) -> np.ndarray:
+    """Heading angle(s) of horizontal direction(s) ``(..., 3)`` in the bench world (0 = +X)."""
+    return np.arctan2(forward[..., 1], forward[..., 0])
+
+
+def _has_inserted_tpose(clip: BvhClip) -> bool:
+    """True if frame 0 is a converter-inserted pose: a jump to frame 1 far above the frame-to-frame change."""
+    if clip.n_frames < 4:
+        return False
+    rot = np.array([c.lower().endswith("rotation") for names in clip.channels for c in names])
+    if not rot.any():
+        return False
+    steps = np.abs(np.diff(clip.frames[: min(clip.n_frames, 12), rot], axis=0)).max(axis=1)
+    return bool(steps[0] > 20.0 and steps[0] > 5.0 * np.median(steps[1:]))
+
+
+def retarget_bvh_keys(
+    clip: BvhClip,
+    params: BodyParams,
+    *,
+    skip_first_frame: bool | None = None,
+    reference: str = "rest",
+    up_axis: str = "y",
+    face_plus_x: bool = True,
+    center_xy: bool = True,
+    name_map: Mapping[str, str] | None = None,
+    name: str | None = None,
+) -> RetargetedBvh:
+    """Map every BVH frame onto the humanoid: see :func:`retarget_bvh` (same parameters)."""
+    if reference not in ("rest", "first_frame"):
+        raise ValueError(f"reference must be 'rest' or 'first_frame', got {reference!r}")
+    if up_axis not in ("y", "z"):
+        raise ValueError(f"up_axis must be 'y' or 'z', got {up_axis!r}")
+    kin = HumanoidKinematics(params)
+    joint_map = map_bvh_joints(clip, name_map)
+    idx = {role: clip.joint_index(j) for role, j in joint_map.items()}
+
+    if skip_first_frame is None:
+        skip_first_frame = _has_inserted_tpose(clip)
+    first = 1 if skip_first_frame else 0
+    if clip.n_frames - first < 2:
+        raise InputFileError(clip.path, f"only {clip.n_frames} frame(s)", "a motion needs at least two frames after the skipped T-pose")
+    keep = np.arange(first, clip.n_frames)
+
+    # BVH axes -> bench axes: Y-up files have the subject's up on +Y; bench is Z-up.
+    axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) if up_axis == "y" else np.eye(3)
+
+    # ---- reference pose: bone directions and heading of the BVH subject ----
+    ref_frames = np.zeros((1, clip.frames.shape[1])) if reference == "rest" else clip.frames[:1]
+    ref = clip.forward_kinematics(ref_frames)
+    pose = clip.forward_kinematics(clip.frames[keep])
+
+    def bone(p: BvhPose, role: str, end_role: str | None) -> np.ndarray:
+        start = p.positions[:, idx[role]]
+        end = p.positions[:, idx[end_role]] if end_role else _chain_end(clip, p.positions, p.end_positions, idx[role])
+        return (end - start) @ axes.T
+
+    bone_ends = {"abdomen": "thorax", "thorax": "head", "head": None}
+    for upper, middle, end, *_ in _LIMBS:
+        bone_ends.update({upper: middle, middle: end, end: None})
+
+    # Scale: limb lengths of the model over those of the skeleton (units-agnostic).
+    body_pos = kin.model.body_pos
+    ours = {r: body_pos[kin.model.body(child).id] for r, child in
+            [(u, m) for u, m, *_ in _LIMBS] + [(m, e) for _, m, e, *_ in _LIMBS]}
+    theirs = {r: np.linalg.norm(bone(ref, r, bone_ends[r])[0]) for r in ours}
+    bvh_total = sum(theirs.values())
+    if not bvh_total > 0:
+        raise InputFileError(clip.path, "the limbs of the skeleton have zero length", "check the OFFSETs of the arm and leg joints")
+    scale = sum(np.linalg.norm(v) for v in ours.values()) / bvh_total
+
+    left = (ref.positions[0, idx["thigh_l"]] - ref.positions[0, idx["thigh_r"]]) @ axes.T
+    psi_ref = float(_heading(left)) - 0.5 * np.pi  # left side towards +Y means facing +X
+
+    # Our bone axes in the body frames (= T-pose world directions).
+    def our_axis(role: str) -> np.ndarray:
+        end = bone_ends[role]
+        if role == "head" or role in ("abdomen", "thorax"):
+            return np.array([0.0, 0.0, 1.0])
+        return _unit(body_pos[kin.model.body(end).id])
+
+    # Per-body alignment A: our T-pose -> the BVH reference pose (bench axes).
+    # The pelvis only turns; hands and feet keep their reference relation to the forearm /
+    # shank (CMU rest skeletons splay the legs ~20 deg with the feet rolled along, so aligning
+    # the feet on their own would leave them rolled by as much once the legs are straight).
+    turn = _rz(psi_ref)
+    align: dict[str, np.ndarray] = {"pelvis": turn}
+    for role in _ROLES[1:]:
+        if role.startswith(("hand", "foot")):
+            continue
+        d_ref = _unit(bone(ref, role, bone_ends[role])[0])
+        align[role] = _min_rotation(turn @ our_axis(role), d_ref) @ turn
+    for _, middle, end, *_ in _LIMBS:
+        align[end] = align[middle]
+    # ... except for the foot's pitch: the ankle -> toe-base bone of the reference pose gets
+    # the pitch of our ankle -> ball-of-foot direction (CMU rest feet are ~10 deg dorsiflexed
+    # compared with a foot flat on the floor).
+    ball = _ball_of_foot(kin)
+    for foot in ("foot_l", "foot_r"):
+        v = align[foot].T @ _unit(bone(ref, foot, None)[0])
+        ours_pitch = np.arctan2(-ball[2], ball[0])
+        align[foot] = align[foot] @ Rotation.from_euler("y", np.arctan2(-v[2], v[0]) - ours_pitch).as_matrix()
+
+    # Target world rotation of every body: the BVH joint's rotation since the reference pose.
+    targets = {}
+    for role in _ROLES:
+        relative = pose.rotations[:, idx[role]] @ ref.rotations[0, idx[role]].T
+        targets[role] = axes @ relative @ axes.T @ align[role]
+
+    heading = np.eye(3)
+    if face_plus_x:
+        n0 = max(1, min(len(keep), int(round(0.25 / clip.frame_time_s))))
+        fwd = targets["pelvis"][:n0, :, 0]
+        psi0 = float(np.arctan2(np.mean(np.sin(_heading(fwd))), np.mean(np.cos(_heading(fwd)))))
+        heading = _rz(-psi0)
+    targets = {r: heading @ t for r, t in targets.items()}
+    dirs = {r: _unit(bone(pose, r, bone_ends[r]) @ heading.T) for r in bone_ends}
+
+    # ---- solve the hinges, parents first ----
+    hinges = np.zeros((len(keep), len(HINGE_NAMES)))
+    hinge_col = {n: i for i, n in enumerate(HINGE_NAMES)}
+    world = {"pelvis": targets["pelvis"]}
+
+    def set_joint(names: tuple[str, ...], local: np.ndarray) -> np.ndarray:
+        """Decompose ``local`` (F,3,3) into ``names`` (intrinsic, hinge order), clamp, return the realised rotation."""
+        axes_seq = [_joint_axis(kin, n) for n in names]
+        free = [a for a in "XYZ" if a not in axes_seq]
+        euler = Rotation.from_matrix(local).as_euler("".join(axes_seq + free))
+        values = np.unwrap(euler[:, : len(names)], axis=0)
+        cols = [hinge_col[n] for n in names]
+        values = np.clip(values, kin.hinge_lo[cols], kin.hinge_hi[cols])
+        hinges[:, cols] = values
+        return Rotation.from_euler("".join(axes_seq), values).as_matrix()
+
+    for role, parent, prefix in _TRUNK:
+        local = np.swapaxes(world[parent], 1, 2) @ targets[role]
+        world[role] = world[parent] @ set_joint((f"{prefix}_x", f"{prefix}_y", f"{prefix}_z"), local)
+
+    for upper, middle, end, mid_hinge, end_hinges, parent in _LIMBS:
+        side = upper[-1]
+        upper_names = (f"shoulder_{side}_x", f"shoulder_{side}_y", f"shoulder_{side}_z") if upper.startswith("upperarm") \
+            else (f"hip_{side}_x", f"hip_{side}_y", f"hip_{side}_z")
+        u = our_axis(upper)
+        e_h = kin.model.jnt_axis[kin.model.joint(mid_hinge).id].copy()
+        lo, hi = kin.hinge_range(mid_hinge)
+        flex = 1.0 if abs(hi) > abs(lo) else -1.0
+        d1, d2 = dirs[upper], dirs[middle]
+        q1 = _limb_upper_rotation(d1, d2, targets[upper], u, e_h, flex)
+        local = np.swapaxes(world[parent], 1, 2) @ q1
+        q1_real = world[parent] @ set_joint(upper_names, local)
+        # hinge angle that best reaches the lower segment's direction from the realised upper segment
+        axis_w = q1_real @ e_h
+        u_w = q1_real @ u
+        d2p = d2 - np.sum(d2 * axis_w, axis=1, keepdims=True) * axis_w
+        theta = np.arctan2(np.sum(np.cross(u_w, d2p) * axis_w, axis=1), np.sum(u_w * d2p, axis=1))
+        theta = np.clip(theta, lo, hi)
+        hinges[:, hinge_col[mid_hinge]] = theta
+        q2 = q1_real @ Rotation.from_rotvec(theta[:, None] * e_h).as_matrix()
+        local_end = np.swapaxes(q2, 1, 2) @ targets[end]
+        set_joint(end_hinges, local_end)
+
+    root_quat = Rotation.from_matrix(targets["pelvis"]).as_quat(scalar_first=True)
+    hip_mid = 0.5 * (pose.positions[:, idx["thigh_l"]] + pose.positions[:, idx["thigh_r"]])
+    world_from_file = heading @ axes
+    root = scale * hip_mid @ world_from_file.T
+
+    qpos = np.zeros((len(keep), len(HINGE_NAMES) + 7))
+    qpos[:, :3] = root
+    qpos[:, 3:7] = root_quat
+    qpos[:, 7:] = hinges
+
+    # Floor at z = 0: the lowest sole point of each frame, at its 25th percentile over the clip
+    # (robust to jumps, where both feet leave the floor), is put on the floor.
+    sole_min = kin.sole_points(qpos)[:, :, 2].min(axis=1)
+    translation = np.zeros(3)
+    translation[2] = -float(np.percentile(sole_min, 25.0))
+    if center_xy:
+        lo_xy, hi_xy = root[:, :2].min(axis=0), root[:, :2].max(axis=0)
+        translation[:2] = -0.5 * (lo_xy + hi_xy)
+    qpos[:, :3] += translation
+
+    times = (keep - keep[0]) * clip.frame_time_s
+    return RetargetedBvh(
+        name=name or clip.path.stem,
+        times_s=times,
+        qpos=qpos,
+        joint_map=joint_map,
+        frames=keep,
+        scale_m_per_unit=float(scale),
+        world_from_file=world_from_file,
+        translation_m=translation,
+        kinematics=kin,
+    )
+
+
+# Ball of the foot (metatarsophalangeal joints), which CMU's toe-base joint marks: 73 % of
+# the foot length from the heel and a quarter of the ankle height above the sole (typical
+# adult foot proportions; the humanoid's foot is a box, so this point is not in the MJCF).
+_BALL_FRACTION_OF_LENGTH = 0.73
+_BALL_FRACTION_OF_ANKLE_HEIGHT = 0.25
+
+
+def _ball_of_foot(kin: HumanoidKinematics) -> np.ndarray:
+    """Ball of the left foot in the foot frame ``(3,)`` metres (the right one mirrors it)."""
+    geom = kin.model.geom("foot_l_col")
+    (cx, _, cz), (hx, _, hz) = geom.pos, geom.size
+    heel, toe, sole = cx - hx, cx + hx, cz - hz
+    return np.array([heel + _BALL_FRACTION_OF_LENGTH * (toe - heel), 0.0, sole * (1.0 - _BALL_FRACTION_OF_ANKLE_HEIGHT)])
+
+
+def _joint_axis(kin: HumanoidKinematics, hinge: str) -> str:
+    axis = kin.model.jnt_axis[kin.model.joint(hinge).id]
+    k = int(np.argmax(np.abs(axis)))
+    if not np.isclose(axis[k], 1.0):  # the spec: hinges about +x, +y or +z of the body frame
+        raise RuntimeError(f"hinge {hinge} is not about a positive body axis; update simbench.scenes.bvh")
+    return _AXIS_LETTER[k]
+
+
+def _limb_upper_rotation(d1, d2, target, u, e_h, flex):
+    """World rotation ``(F, 3, 3)`` of a limb's upper segment.
+
+    The bone axis ``u`` goes to the BVH direction ``d1``; the twist about it puts the hinge
+    axis ``e_h`` normal to the plane of ``d1`` and ``d2`` (so the one-DoF elbow/knee can
+    reach ``d2``) when the limb is bent, and follows the BVH segment's own rotation
+    (``target``) when it is nearly straight, with a smooth blend in between.
+    """
+    normal = np.cross(d1, d2)
+    n_rot = target @ e_h
+    n_rot = _unit(n_rot - np.sum(n_rot * d1, axis=1, keepdims=True) * d1)
+    bend = flex * np.sum(normal * n_rot, axis=1)  # sine of the flexion seen in the BVH segment's bend plane
+    w = np.clip((bend - _BEND_SIN_LO) / (_BEND_SIN_HI - _BEND_SIN_LO), 0.0, 1.0)
+    w = (w * w * (3.0 - 2.0 * w))[:, None]
+    n = _unit(w * flex * _unit(normal) + (1.0 - w) * n_rot)
+    n = _unit(n - np.sum(n * d1, axis=1, keepdims=True) * d1)
+    u_perp = _unit(u - np.dot(u, e_h) * e_h)
+    local = np.stack([u_perp, e_h, np.cross(u_perp, e_h)], axis=0)  # rows: the three local vectors
+    world = np.stack([d1, n, np.cross(d1, n)], axis=2)  # columns: their world images
+    return world @ local
+
+
+def retarget_bvh(
+    clip: BvhClip,
+    params: BodyParams,
+    *,
+    skip_first_frame: bool | None = None,
+    reference: str = "rest",
+    up_axis: str = "y",
+    face_plus_x: bool = True,
+    center_xy: bool = True,
+    name_map: Mapping[str, str] | None = None,
+    name: str | None = None,
+) -> Motion:
+    """Retarget a BVH clip onto the humanoid of ``params``.
+
+    Each humanoid body follows one BVH joint (:func:`map_bvh_joints`; both CMU naming
+    schemes and common aliases are known).  A body's world rotation is the BVH joint's
+    rotation since the reference pose, applied to our T-pose after aligning the bone
+    directions of the two reference poses; the trunk and neck then take their XYZ hinges
+    relative to the realised parent.  Limbs are solved so that the upper and lower
+    segments point along the BVH bones (the elbow/knee hinge is one DoF, so the upper
+    segment's twist is chosen to put the bend in the BVH's plane), and the hand/foot take
+    the two wrist/ankle hinges that keep their long axis.  Every hinge is clamped to the
+    model's ranges.
+
+    Parameters
+    ----------
+    clip : BvhClip
+        From :func:`load_bvh`.
+    params : BodyParams
+        Target subject; the BVH is scaled by the ratio of limb lengths (so any units work).
+    skip_first_frame : bool, optional
+        Drop frame 0 (the converter-inserted T-pose of the CMU conversions).  Default: drop it
+        when it is detected (a jump from frame 0 to 1 far above the frame-to-frame change).
+    reference : {"rest", "first_frame"}
+        Pose that corresponds to our T-pose: all channels zero (the OFFSETs), or frame 0.
+    up_axis : {"y", "z"}
+        The file's up axis (BVH files are normally Y-up).
+    face_plus_x : bool
+        Turn the clip about the vertical so that the subject faces +X during its first 0.25 s.
+    center_xy : bool
+        Centre the root's horizontal path (bounding box) on the origin.
+    name_map : mapping, optional
+        Humanoid body -> BVH joint overrides for files with unusual names.
+    name : str, optional
+        Motion name; default the file stem.
+
+    Returns
+    -------
+    Motion
+        Key poses at the BVH frame times, interpolated (C1) in between; the floor is at
+        z = 0 with the lowest sole on it (25th percentile over the clip).
+    """
+    return retarget_bvh_keys(
+        clip, params, skip_first_frame=skip_first_frame, reference=reference, up_axis=up_axis,
+        face_plus_x=face_plus_x, center_xy=center_xy, name_map=name_map, name=name,
+    ).motion()
