@@ -25,6 +25,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import numpy as np
+
 # --- Winter / Drillis-Contini length fractions of standing height -----------------
 ANKLE_HEIGHT_FRAC = 0.039  # floor -> ankle joint centre
 SHANK_FRAC = 0.246  # ankle -> knee (0.285 - 0.039)
@@ -57,24 +59,55 @@ MASS_FRACTIONS = {
     "foot": 0.0145,
 }
 
-# --- radii as fractions of height (average adult, times BodyParams.girth) ---------
+# --- torso shape ---------------------------------------------------------------------
+# Torso cross-sections (superellipses, exponent TORSO_SECTION_EXPONENT) from the crotch
+# to the neck: height as a fraction alpha of the hip-centre -> neck-joint distance
+# (negative below the hips), half depth (X) and half width (Y) as fractions of height.
+# Shaped after ANSUR II breadths/depths of an average adult (hip breadth 0.19 H, waist
+# breadth 0.16 H, chest breadth 0.17 H, chest depth 0.14 H, waist depth 0.11 H).
+TORSO_SECTIONS = (
+    # alpha, half_depth, half_width
+    (-0.18, 0.048, 0.070),
+    (-0.12, 0.064, 0.088),
+    (-0.05, 0.070, 0.094),
+    (0.05, 0.068, 0.092),
+    (0.15, 0.061, 0.085),
+    (0.25, 0.057, 0.078),
+    (0.35, 0.056, 0.076),
+    (0.45, 0.058, 0.078),
+    (0.55, 0.064, 0.082),
+    (0.65, 0.068, 0.085),
+    (0.75, 0.069, 0.085),
+    (0.83, 0.067, 0.083),
+    (0.90, 0.059, 0.073),
+    (0.95, 0.048, 0.055),
+    (1.00, 0.034, 0.035),
+)
+TORSO_SECTION_EXPONENT = 2.5
+
+# Reference build for girth = 1: a 1.75 m, 70 kg adult.  Radii scale with the square
+# root of the ponderal index mass / height^3 relative to it, so the body's volume
+# follows its mass for any height.
+REFERENCE_PONDERAL_INDEX = 70.0 / 1.75**3
+
+# --- radii as fractions of height (average adult; times the build scale) -------------
 RADIUS_FRACTIONS = {
-    "upperarm_prox": 0.026,  # at the shoulder (~0.046 m at 1.75 m)
-    "upperarm_dist": 0.020,  # at the elbow
-    "forearm_prox": 0.020,
-    "forearm_dist": 0.0145,  # at the wrist (~0.025 m)
+    "upperarm_prox": 0.027,  # at the shoulder (~0.047 m at 1.75 m)
+    "upperarm_dist": 0.021,  # at the elbow
+    "forearm_prox": 0.021,
+    "forearm_dist": 0.015,  # at the wrist (~0.026 m)
     "hand_half_width": 0.025,  # palm half breadth (~0.044 m)
     "hand_half_thickness": 0.0085,
-    "thigh_prox": 0.046,  # at the hip (~0.080 m)
-    "thigh_dist": 0.030,  # at the knee
-    "shank_prox": 0.030,
-    "shank_dist": 0.019,  # at the ankle
-    "pelvis_half_depth": 0.058,
+    "thigh_prox": 0.049,  # at the hip (~0.086 m)
+    "thigh_dist": 0.031,  # at the knee
+    "shank_prox": 0.031,
+    "shank_dist": 0.020,  # at the ankle
+    "pelvis_half_depth": 0.068,  # the following six: typical values of TORSO_SECTIONS
     "pelvis_half_width": 0.092,
-    "abdomen_half_depth": 0.056,
-    "abdomen_half_width": 0.080,
-    "thorax_half_depth": 0.062,
-    "thorax_half_width": 0.088,
+    "abdomen_half_depth": 0.057,
+    "abdomen_half_width": 0.078,
+    "thorax_half_depth": 0.068,
+    "thorax_half_width": 0.085,
     "neck": 0.030,
     "head_half_depth": 0.055,  # ~0.19 m head length
     "head_half_width": 0.044,  # ~0.155 m head breadth
@@ -99,7 +132,9 @@ class BodyParams:
     mass_kg : float
         Body mass in kilograms (segment masses follow Dempster's fractions).
     girth : float
-        Scale of all segment radii (1.0 = average build).
+        Extra scale of all segment radii (1.0 = average build).  Radii already
+        follow the mass: they scale with ``sqrt(mass / height^3)`` relative to a
+        1.75 m, 70 kg adult, so the body's volume matches its mass.
     """
 
     height_m: float = 1.75
@@ -158,8 +193,10 @@ class BodyParams:
 class BodyDims:
     """Segment dimensions in metres, derived from :class:`BodyParams`.
 
-    Lengths are between joint centres; ``r_*`` are radii; ``m_*`` are segment masses
-    in kilograms.  All vectors are in the T-pose body frames (= world axes).
+    Lengths are between joint centres; ``radius`` holds radii and half breadths
+    (``RADIUS_FRACTIONS`` keys), ``mass`` segment masses in kilograms.  All vectors
+    are in the T-pose body frames (= world axes).  ``radius_scale`` is the factor
+    applied to the tabulated radius fractions times height.
     """
 
     height: float
@@ -181,6 +218,7 @@ class BodyDims:
     heel: float  # heel behind the ankle joint centre
     radius: dict
     mass: dict
+    radius_scale: float
 
     @property
     def hip_height(self) -> float:
@@ -191,7 +229,8 @@ class BodyDims:
 def body_dimensions(params: BodyParams) -> BodyDims:
     """Segment lengths, radii and masses of a subject, in metres and kilograms."""
     H = params.height_m
-    radius = {k: v * H * params.girth for k, v in RADIUS_FRACTIONS.items()}
+    scale = params.girth * float(np.sqrt(params.mass_kg / H**3 / REFERENCE_PONDERAL_INDEX))
+    radius = {k: v * H * scale for k, v in RADIUS_FRACTIONS.items()}
     mass = {k: v * params.mass_kg for k, v in MASS_FRACTIONS.items()}
     return BodyDims(
         height=H,
@@ -213,4 +252,5 @@ def body_dimensions(params: BodyParams) -> BodyDims:
         heel=params.heel_frac * params.foot_length_frac * H,
         radius=radius,
         mass=mass,
+        radius_scale=scale,
     )
