@@ -122,28 +122,35 @@ class FrameRenderer:
         n = len(subframe_poses)
         # Pose every sub-frame once; all cameras share them (synchronised global shutters).
         posed = [self.moving.pose(p.body_pos, p.body_rot, p.marker_pos, p.prop_T) for p in subframe_poses]
-        mid_posed = self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
+        mid_posed = None if n == 1 else self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
         sub_times = self.subframe_times(t_mid, n)
         for ci, cam in enumerate(self.cameras):
             canvas = cam.canvas(ss)
             acc = None
+            idr = None
+            rad_out = ("radiance_red",) if self.cfg.mode == "ir" else ("radiance",)
             for (P, N), ts in zip(posed, sub_times):
                 self.raster.update_dynamic(P, N)
                 lights, ambient, ring = self._lights(float(ts), cam)
+                # Without blur the one sub-frame *is* mid-exposure: take its ids from the same pass.
+                outs = rad_out + (("ids",) if n == 1 else ())
                 out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                         outputs=("radiance",))
+                                         outputs=outs)
                 acc = out["radiance"].copy() if acc is None else acc + out["radiance"]
-            radiance = acc / np.float32(n)
-            # Ids and visibility at mid-exposure (the instant of the ground truth).
-            self.raster.update_dynamic(*mid_posed)
-            lights, ambient, ring = self._lights(t_mid, cam)
-            idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                     outputs=("ids",))["ids"]
+                idr = out.get("ids")
+            radiance = acc / np.float32(n) if n > 1 else acc
+            if idr is None:  # ids and visibility at mid-exposure (the instant of the ground truth)
+                self.raster.update_dynamic(*mid_posed)
+                lights, ambient, ring = self._lights(t_mid, cam)
+                idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
+                                         outputs=("ids",))["ids"]
             vis[ci] = self._visible_fraction(cam, idr, mid_pose.marker_pos, ss)
             id_maps[ci] = cam.finish_nearest(idr, ss).astype(np.int16)
             img = cam.finish_radiance(radiance, ss)
             if self.cfg.psf_sigma_px > 0:
                 img = cv2.GaussianBlur(img, (0, 0), self.cfg.psf_sigma_px)
+            if img.ndim == 2:  # OpenCV drops a single channel axis
+                img = img[..., None]
             e = self.sensors[ci].electrons(img, rng)
             images[ci] = self.sensors[ci].to_frame(e, self.wbs[ci])
         return FrameOutput(index, t_mid, images, id_maps, vis, n)

@@ -297,7 +297,7 @@ class Rasterizer:
         """Render one view.
 
         Returns a dict with the requested ``outputs``: ``radiance`` (H, W, 3) float32
-        linear, ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
+        linear (``radiance_red`` gives only its first channel, (H, W, 1), as ``radiance``), ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
         (0 where nothing was drawn).
         """
         if len(lights) > MAX_LIGHTS:
@@ -348,6 +348,10 @@ class Rasterizer:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGB, gl.GL_FLOAT)
             out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 3)
+        if "radiance_red" in outputs:  # monochrome (IR) sensors: one channel is enough
+            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
+            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
+            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 1)
         if "ids" in outputs:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT1)
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED_INTEGER, gl.GL_INT)

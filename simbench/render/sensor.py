@@ -66,8 +66,8 @@ class Sensor:
     def electrons(self, radiance: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """Mean radiance ``(H, W, 3)`` -> noisy electron counts ``(H, W, C)`` float32."""
         cfg = self.cfg
-        if cfg.mode == "ir":
-            radiance = radiance.mean(axis=2, keepdims=True)
+        if cfg.mode == "ir" and radiance.shape[2] != 1:
+            radiance = radiance[..., :1]  # the IR sensor: one channel (the renderer's red ~ near infrared)
         e = radiance * self.scale
         if rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0):
             var = (e if cfg.shot_noise else np.float32(0)) + np.float32(cfg.read_noise_e**2)

@@ -1,0 +1,123 @@
+"""A scenario assembled into a bench: scene, motion, cameras, lights and renderer.
+
+This is the layer between the validated :class:`~simbench.scenario.Scenario` and
+the per-frame loop: it builds the MuJoCo scene (humanoid with marker sites, props),
+the motion clip, the virtual cameras, the lights, the triangle geometry for the
+rasteriser, and a ``pose_at(times)`` function that simulates the scene at any set of
+(sub-frame) instants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+import trimesh
+
+from simbench.errors import ScenarioError
+from simbench.render import ids as idc
+from simbench.render.camera import VirtualCamera, cameras_from_scenario
+from simbench.render.frames import FrameRenderer, Pose
+from simbench.render.geometry import moving_geometry, set_geometry
+from simbench.render.lighting import Lighting
+from simbench.scenario import BallConfig, BarrierConfig, MovingConfig, Scenario
+from simbench.scenes.anthropometry import BodyParams
+from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES
+from simbench.scenes.markers import MARKER_RADIUS_M
+from simbench.scenes.motions import Motion, make_motion
+from simbench.scenes.props import BallProp, BarrierProp, MovingProp
+from simbench.scenes.scene import Scene, build_scene
+from simbench.scenes.simulation import SceneStates, simulate
+
+
+def body_params(scenario: Scenario) -> BodyParams:
+    return BodyParams(height_m=scenario.body.height_m, **scenario.body.proportions) if scenario.body.proportions else BodyParams(height_m=scenario.body.height_m)
+
+
+def make_props(scenario: Scenario) -> list:
+    props = []
+    for p in scenario.props:
+        if isinstance(p, BallConfig):
+            props.append(BallProp(name=p.name, radius_m=p.radius_m, position=tuple(p.position), velocity=tuple(p.velocity), rgb=tuple(p.rgb)))
+        elif isinstance(p, BarrierConfig):
+            props.append(BarrierProp(name=p.name, size_m=tuple(p.size_m), position=tuple(p.position), yaw_deg=p.yaw_deg, rgb=tuple(p.rgb)))
+        elif isinstance(p, MovingConfig):
+            props.append(MovingProp(name=p.name, size_m=tuple(p.size_m), start=tuple(p.start), velocity=tuple(p.velocity), rgb=tuple(p.rgb)))
+    return props
+
+
+def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.Generator) -> Motion:
+    m = scenario.motion
+    needed = m.start_s + scenario.duration_s * m.speed + 0.1
+    if m.clip == "bvh":
+        from simbench.scenes.bvh import load_bvh, retarget_bvh
+
+        clip = retarget_bvh(load_bvh(scenario.resolve_path(m.bvh)), params)
+    else:
+        from simbench.scenes.motions import MOTIONS
+
+        if m.clip not in MOTIONS:
+            raise ScenarioError(scenario.source_dir or "<scenario>", "motion.clip", m.clip,
+                                f"choose one of {sorted(MOTIONS)} or 'bvh'")
+        clip = make_motion(m.clip, params, needed, rng=None)
+    if m.start_s == 0.0 and m.speed == 1.0:
+        return clip
+    return Motion(name=clip.name, duration_s=scenario.duration_s + 0.1,
+                  evaluate=lambda t: clip.qpos(m.start_s + m.speed * np.asarray(t)), description=clip.description)
+
+
+@dataclass
+class Bench:
+    scenario: Scenario
+    params: BodyParams
+    scene: Scene
+    motion: Motion
+    cameras: list[VirtualCamera]
+    lighting: Lighting
+    marker_names: list[str]
+    prop_names: list[str]
+    _body_index: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario) -> "Bench":
+        params = body_params(scenario)
+        rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0xB0D7]))
+        marker_set = None if scenario.subject.markers == "none" else scenario.subject.markers
+        scene = build_scene(params, marker_set=marker_set, shirt=scenario.subject.shirt, props=make_props(scenario),
+                            skin_rgb=tuple(scenario.subject.skin_rgb), clothes_rgb=tuple(scenario.subject.suit_rgb))
+        motion = make_scenario_motion(scenario, params, rng)
+        cams = cameras_from_scenario(scenario)
+        lighting = Lighting(scenario.lighting, scenario_path=scenario.source_dir or scenario.name)
+        return cls(scenario, params, scene, motion, cams, lighting,
+                   [m.name for m in scene.marker_specs], [p.name for p in scene.props])
+
+    # ------------------------------------------------------------------ states
+    def states(self, times: np.ndarray) -> SceneStates:
+        """Simulate the scene at increasing ``times`` (s)."""
+        return simulate(self.scene, self.motion.qpos, np.asarray(times, float))
+
+    def pose_at(self, times: np.ndarray) -> list[Pose]:
+        st = self.states(times)
+        out = []
+        P = len(self.prop_names)
+        for i in range(len(times)):
+            prop_T = np.stack([st.prop_poses[n][i] for n in self.prop_names]) if P else np.zeros((0, 4, 4))
+            probe = np.concatenate([st.joint_centres[i], st.marker_xpos[i]]) if st.marker_xpos.size else st.joint_centres[i]
+            out.append(Pose(st.body_xpos[i], st.body_xmat[i].reshape(-1, 3, 3), st.marker_xpos[i], prop_T, probe))
+        return out
+
+    # ------------------------------------------------------------------ render
+    def frame_renderer(self, rasterizer=None) -> FrameRenderer:
+        sc = self.scenario
+        rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5E7]))
+        static = set_geometry(sc.set, rng)
+        prop_meshes = [(p.mesh(), np.asarray(p.rgb, float), idc.PROP_BASE + k) for k, p in enumerate(self.scene.props)]
+        body_index = {name: self.scene.body_id(name) for name in BODY_NAMES}
+        moving = moving_geometry(self.scene.surface_parts, body_index, len(self.marker_names), prop_meshes, MARKER_RADIUS_M)
+        return FrameRenderer(self.cameras, sc.sensor, sc.fps, self.lighting, static, moving,
+                             len(self.marker_names), MARKER_RADIUS_M, rasterizer=rasterizer)
+
+    @property
+    def hinge_names(self) -> list[str]:
+        return list(HINGE_NAMES)

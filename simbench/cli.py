@@ -1,0 +1,117 @@
+"""``simbench`` command line.
+
+Every error a user can cause (a bad scenario field, a missing file, no GL) prints
+one line naming the file, the field, the value and the fix, and exits with code 2.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from mocap.errors import MocapInputError
+from simbench.errors import SimbenchInputError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help="Simulation-validated test bench for optical motion capture.")
+bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that print figures with a reference measured in the same run.")
+app.add_typer(bench_app, name="bench")
+console = Console(stderr=True)
+
+
+def user_errors(fn):
+    """Turn user-caused errors into one line on stderr and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except (SimbenchInputError, MocapInputError) as exc:
+            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
+
+    return wrapper
+
+
+def progress_bar(description: str, total: int):
+    """A rich progress bar; returns (progress, advance_callable)."""
+    prog = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console,
+                    disable=not sys.stderr.isatty() and False)
+    task = prog.add_task(description, total=total)
+    return prog, lambda n=1: prog.advance(task, n)
+
+
+@app.command()
+@user_errors
+def info(scenario: Path = typer.Argument(..., help="scenario TOML"),
+         schema: bool = typer.Option(False, "--schema", help="print the JSON schema of scenario files")) -> None:
+    """Print the resolved scenario (every field, defaults filled in)."""
+    from simbench.scenario import Scenario, load_scenario
+
+    if schema:
+        print(json.dumps(Scenario.model_json_schema(), indent=2))
+        return
+    sc = load_scenario(scenario)
+    data = sc.model_dump(mode="json")
+    data["_resolved"] = {"n_frames": sc.n_frames, "hash": sc.content_hash()}
+    from simbench.render.camera import cameras_from_scenario
+
+    data["_resolved"]["cameras"] = [
+        {"name": c.name, "position_m": [round(v, 4) for v in c.center.tolist()], "fx_px": round(float(c.K[0, 0]), 3)}
+        for c in cameras_from_scenario(sc)
+    ]
+    print(json.dumps(data, indent=2))
+
+
+@app.command()
+@user_errors
+def render(scenario: Path = typer.Argument(..., help="scenario TOML"),
+           out: Path = typer.Option(..., "--out", help="output directory (replaced when the render completes)"),
+           png: bool = typer.Option(False, "--png", help="also write every frame as PNG")) -> None:
+    """Render a scenario: per-camera MP4, ground truth, calibration, contact sheet."""
+    from simbench.rendering import render_scenario
+    from simbench.scenario import load_scenario
+
+    sc = load_scenario(scenario)
+    prog, advance = progress_bar(f"render {sc.name}", sc.n_frames)
+    with prog:
+        seq = render_scenario(sc, out, png=png, progress=advance)
+    gt = seq.ground_truth
+    console.print(f"wrote {out}/ : {len(gt.camera_names)} cameras x {gt.n_frames} frames, "
+                  f"{len(gt.marker_names)} markers, mean shutter sub-frames {gt.n_subframes.mean():.1f}")
+
+
+@app.command("list")
+def list_things() -> None:
+    """List motions, lighting presets, marker sets and trackers."""
+    from mocap.trackers import TRACKERS
+    from simbench.scenes.motions import MOTIONS
+
+    print("motions:", ", ".join(MOTIONS), "+ bvh")
+    print("lighting presets: office_fluorescent, tungsten_lamp, daylight_outdoor, dim_gym, mixed, custom")
+    print("marker sets: plugin_gait_full, sparse_joints, upper_body, none")
+    print("trackers:", ", ".join(TRACKERS))
+
+
+@bench_app.command("render")
+@user_errors
+def bench_render(frames: int = typer.Option(60, help="frames per measurement")) -> None:
+    """Frames per second of the renderer, with mujoco.Renderer on the same scene as reference."""
+    from simbench.benchmarks import run_render_benchmark
+
+    run_render_benchmark(n_frames=frames)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,169 @@
+"""Render a scenario: frames of every camera plus exact ground truth.
+
+``render_scenario`` streams frames to MP4 (and optionally PNG) while it renders, keeps
+the ground truth of every frame, and writes everything into a temporary directory
+that replaces ``out`` only when the render has finished: an interrupted render leaves
+nothing half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from simbench.bench import Bench
+from simbench.ground_truth import GroundTruth
+from simbench.render.contact_sheet import contact_sheet
+from simbench.render.frames import FrameOutput, iterate_frames
+from simbench.render.video import Mp4Writer
+from simbench.scenario import Scenario
+
+
+@dataclass
+class RenderedSequence:
+    """What a render hands to the pipeline and the scorer (kept in memory)."""
+
+    ground_truth: GroundTruth
+    frames: np.ndarray | None    # (F, C, H, W, 3) uint8 when kept in memory
+
+
+def _ground_truth(bench: Bench, outputs: list[FrameOutput], keep_ids: bool) -> GroundTruth:
+    sc = bench.scenario
+    times = np.array([o.time_s for o in outputs])
+    st = bench.states(times)
+    cams = bench.cameras
+    M = len(bench.marker_names)
+    F, C = len(times), len(cams)
+    m2d = np.full((F, C, M, 2), np.nan)
+    for ci, cam in enumerate(cams):
+        if M:
+            m2d[:, ci] = cam.project(st.marker_xpos.reshape(-1, 3)).reshape(F, M, 2)
+    vis_frac = np.stack([o.marker_visible_fraction for o in outputs]) if outputs else np.zeros((0, C, M))
+    P = len(bench.prop_names)
+    prop_poses = np.stack([st.prop_poses[n] for n in bench.prop_names], axis=1) if P else np.zeros((F, 0, 4, 4))
+    light = np.stack([bench.lighting.intensities_at(float(t)) for t in times]) if F else np.zeros((0, len(bench.lighting.names)))
+    from simbench.scenes.humanoid import BODY_NAMES
+
+    gt = GroundTruth(
+        times=times, camera_names=[c.name for c in cams],
+        K=np.stack([c.K for c in cams]), dist=np.stack([c.dist for c in cams]),
+        R=np.stack([c.R for c in cams]), t=np.stack([c.t for c in cams]),
+        image_size=(cams[0].width, cams[0].height),
+        marker_names=list(bench.marker_names), markers_3d=st.marker_xpos.copy(), markers_2d=m2d,
+        marker_visible=vis_frac >= 0.5, marker_visible_frac=vis_frac,
+        joint_names=list(BODY_NAMES), hinge_names=bench.hinge_names, qpos=st.qpos[:, :40].copy(),
+        joint_centres=st.joint_centres.copy(), prop_names=list(bench.prop_names), prop_poses=prop_poses,
+        light_names=list(bench.lighting.names), light_intensity=light,
+        n_subframes=np.array([o.n_subframes for o in outputs]), fps=sc.fps,
+        scenario_name=sc.name, scenario_hash=sc.content_hash(),
+    )
+    if keep_ids:
+        gt.id_maps = {c.name: np.stack([o.ids[ci] for o in outputs]) for ci, c in enumerate(cams)}
+    return gt
+
+
+def render_frames(bench: Bench, on_frame: Callable[[FrameOutput], None] | None = None,
+                  keep_frames: bool = True, keep_ids: bool = True, progress=None) -> RenderedSequence:
+    """Render every frame (in memory), calling ``on_frame`` for each as it is made."""
+    sc = bench.scenario
+    renderer = bench.frame_renderer()
+    outputs: list[FrameOutput] = []
+    frames = []
+    for out in iterate_frames(renderer, sc.frame_times(), bench.pose_at, sc.seed):
+        if on_frame is not None:
+            on_frame(out)
+        if keep_frames:
+            frames.append(out.images)
+        if not keep_ids:
+            out.ids = None
+        outputs.append(out)
+        if progress is not None:
+            progress(1)
+    gt = _ground_truth(bench, outputs, keep_ids)
+    return RenderedSequence(gt, np.stack(frames) if keep_frames and frames else None)
+
+
+def write_render_outputs(bench: Bench, seq_writer_dir: Path, png: bool) -> tuple[Callable[[FrameOutput], None], Callable[[], None]]:
+    """Per-frame writer (MP4 per camera, PNG on request) and its closer."""
+    sc = bench.scenario
+    videos = seq_writer_dir / "videos"
+    videos.mkdir(parents=True, exist_ok=True)
+    writers = {c.name: Mp4Writer(videos / f"{c.name}.mp4", c.width, c.height, sc.fps) for c in bench.cameras}
+    if png:
+        for c in bench.cameras:
+            (seq_writer_dir / "frames" / c.name).mkdir(parents=True, exist_ok=True)
+
+    def on_frame(out: FrameOutput) -> None:
+        for ci, c in enumerate(bench.cameras):
+            writers[c.name].write(out.images[ci])
+            if png:
+                cv2.imwrite(str(seq_writer_dir / "frames" / c.name / f"{out.index:06d}.png"), out.images[ci][..., ::-1])
+
+    def close() -> None:
+        for w in writers.values():
+            w.close()
+
+    return on_frame, close
+
+
+def write_contact_sheet(bench: Bench, seq: RenderedSequence, path: Path, n_rows: int = 3) -> None:
+    gt = seq.ground_truth
+    F = gt.n_frames
+    rows = sorted(set(np.linspace(0, F - 1, min(n_rows, F)).round().astype(int)))
+    frames = {(k, c.name): seq.frames[k, ci] for k in rows for ci, c in enumerate(bench.cameras)}
+    overlays = {(k, c.name): gt.markers_2d[k, ci][gt.marker_visible[k, ci]] for k in rows for ci, c in enumerate(bench.cameras)}
+    contact_sheet(frames, {k: float(gt.times[k]) for k in rows}, path, overlays=overlays)
+
+
+class AtomicOutputDir:
+    """Write into a temporary sibling directory; move it into place on success only."""
+
+    def __init__(self, out: str | Path) -> None:
+        self.out = Path(out)
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=self.out.parent))
+
+    def __enter__(self) -> Path:
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+            return
+        if self.out.exists():
+            old = self.out.with_name(f".{self.out.name}.old-{os.getpid()}")
+            os.replace(self.out, old)
+            os.replace(self.tmp, self.out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(self.tmp, self.out)
+
+
+def save_scenario_copy(scenario: Scenario, directory: Path) -> None:
+    (directory / "scenario.json").write_text(json.dumps(scenario.model_dump(mode="json"), indent=2))
+
+
+def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, progress=None) -> RenderedSequence:
+    """``simbench render``: MP4 per camera, optional PNGs, ground truth, contact sheet."""
+    bench = Bench.from_scenario(scenario)
+    with AtomicOutputDir(out) as tmp:
+        on_frame, close = write_render_outputs(bench, tmp, png)
+        try:
+            seq = render_frames(bench, on_frame=on_frame, keep_frames=True, keep_ids=True, progress=progress)
+        finally:
+            close()
+        seq.ground_truth.save(tmp / "ground_truth")
+        cal = seq.ground_truth.calibration()
+        cal.save_opencv_yaml(tmp / "calibration.yml")
+        cal.save_toml(tmp / "calibration.toml")
+        write_contact_sheet(bench, seq, tmp / "contact_sheet.png")
+        save_scenario_copy(scenario, tmp)
+    return seq
