@@ -367,8 +367,8 @@ def load_bvh(path: str | Path) -> BvhClip:
     channel_start = np.concatenate([[0], np.cumsum(channel_counts)[:-1]]).astype(int)
     n_channels = int(channel_counts.sum())
 
-    n_frames, frame_time, data_start = _read_motion_header(path, lines, tokens.motion_line)
-    frames = _read_frames(path, lines, data_start, n_frames, n_channels)
+    n_frames, frame_time, data_start, frames_line = _read_motion_header(path, lines, tokens.motion_line)
+    frames = _read_frames(path, lines, data_start, n_frames, n_channels, frames_line)
 
     return BvhClip(
         path=path,
@@ -384,8 +384,11 @@ def load_bvh(path: str | Path) -> BvhClip:
     )
 
 
-def _read_motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float, int]:
-    """Parse ``Frames: N`` and ``Frame Time: dt``; return them and the 0-based index of the first data line."""
+def _read_motion_header(path: Path, lines: list[str], motion_line: int) -> tuple[int, float, int, int]:
+    """Parse ``Frames: N`` and ``Frame Time: dt``.
+
+    Returns N, dt, the 0-based index of the first data line and the 1-based line of ``Frames:``.
+    """
     index = motion_line  # 0-based index of the line after MOTION
     header: dict[str, tuple[str, int]] = {}
     while index < len(lines) and len(header) < 2:
@@ -418,16 +421,16 @@ def _read_motion_header(path: Path, lines: list[str], motion_line: int) -> tuple
         frame_time = float("nan")
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise InputFileError(path, f"Frame Time: '{value}' is not a positive number of seconds", "e.g. 'Frame Time: 0.0083333' for 120 Hz", field=f"line {line}")
-    return n_frames, frame_time, index
+    return n_frames, frame_time, index, header["frames"][1]
 
 
-def _read_frames(path: Path, lines: list[str], start: int, n_frames: int, n_channels: int) -> np.ndarray:
+def _read_frames(path: Path, lines: list[str], start: int, n_frames: int, n_channels: int, frames_line: int) -> np.ndarray:
     """Motion rows ``(n_frames, n_channels)``; errors name the first bad line."""
     rows = [(number, line) for number, line in enumerate(lines[start:], start=start + 1) if line.strip()]
     if len(rows) < n_frames:
         raise InputFileError(
             path, f"'Frames: {n_frames}' but only {len(rows)} data lines",
-            "correct the Frames: line or restore the missing frames", field=f"line {len(lines)}",
+            "correct the Frames: line or restore the missing frames", field=f"line {frames_line}",
         )
     if len(rows) > n_frames:
         number = rows[n_frames][0]

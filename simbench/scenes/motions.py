@@ -383,8 +383,8 @@ def _build_zigzag_fast(kin: HumanoidKinematics, duration_s: float, var: _Variati
 
 def _build_swing_accelerating(kin: HumanoidKinematics, duration_s: float, var: _Variation) -> _ClipCurves:
     # Right arm swings like a pendulum in the sagittal plane; the swing frequency ramps
-    # linearly from f0 to f1 over the clip, so the angular speed grows about 4x.
-    f0, f1 = 0.35 * var.tempo, 1.4 * var.tempo
+    # linearly from f0 to f1 over the clip, so the angular speed grows about 6x.
+    f0, f1 = 0.25 * var.tempo, 1.5 * var.tempo
     span = max(duration_s, 1e-6)
     a = var.amplitude
 
@@ -447,7 +447,7 @@ _FOREHAND_PHASES = np.array([0.0, 0.35, 0.5, 0.6, 0.8, 1.0])
 _FOREHAND_KEYS = {
     "shoulder_r_x": [1.1, 0.3, 0.7, -0.2, 0.9, 1.1],
     "shoulder_r_y": [0.0, -0.4, 0.0, 0.3, 0.1, 0.0],
-    "shoulder_r_z": [0.5, -0.6, 0.5, 1.9, 1.0, 0.5],
+    "shoulder_r_z": [0.5, -0.6, 0.5, 1.7, 1.0, 0.5],
     "elbow_r": [0.6, 1.4, 0.3, 1.2, 0.8, 0.6],
     "wrist_r_x": [0.0, 0.3, 0.0, -0.3, 0.0, 0.0],
     "shoulder_l_x": [-1.2, -0.6, -0.9, -1.3, -1.2, -1.2],
@@ -537,7 +537,7 @@ MOTIONS: Mapping[str, ClipSpec] = MappingProxyType(
             ClipSpec("tpose", "static T-pose (arms horizontal, palms down)", _build_tpose),
             ClipSpec("wave_slow", "left hand waves slowly beside the head, right arm relaxed", _build_wave_slow),
             ClipSpec("zigzag_fast", "both arms sweep in fast zigzags (3.5 reversals per second)", _build_zigzag_fast),
-            ClipSpec("swing_accelerating", "right arm pendulum swing speeding up about 4x over the clip", _build_swing_accelerating),
+            ClipSpec("swing_accelerating", "right arm pendulum swing whose frequency ramps from 0.25 to 1.5 Hz", _build_swing_accelerating),
             ClipSpec("jumping_jacks", "jumping jacks at 1 Hz: arms overhead, legs apart, hop", _build_jumping_jacks),
             ClipSpec("squash_forehand", "repeated squash forehand: backswing, trunk rotation, follow-through", _build_squash_forehand),
             ClipSpec("walk_in_place", "marching on the spot with arm counter-swing", _build_walk_in_place),

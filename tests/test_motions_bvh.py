@@ -1,0 +1,287 @@
+"""BVH parsing and retargeting onto the humanoid, on the two shared CMU clips and on small
+hand-written files whose forward kinematics is known.
+
+Joint centres of the humanoid come from MuJoCo forward kinematics (body origins); the BVH's
+own joint positions come from its forward kinematics, brought into the bench world with the
+scale and rotation the retargeting reports.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mocap.errors import InputFileError
+from simbench.scenes.bvh import load_bvh, map_bvh_joints, retarget_bvh, retarget_bvh_keys
+from simbench.scenes.humanoid import BODY_NAMES, BodyParams
+
+DATA = Path("/work/shared/data/bvh")
+WALK = DATA / "131_01.bvh"
+JACKS = DATA / "13_29_jumping_jacks_frames0-599.bvh"
+PARAMS = BodyParams()
+B = {name: i for i, name in enumerate(BODY_NAMES)}
+LIMB_SEGMENTS = [
+    ("upperarm_l", "forearm_l"), ("forearm_l", "hand_l"), ("upperarm_r", "forearm_r"), ("forearm_r", "hand_r"),
+    ("thigh_l", "shank_l"), ("shank_l", "foot_l"), ("thigh_r", "shank_r"), ("shank_r", "foot_r"),
+]
+
+@pytest.fixture(scope="module")
+def walk():
+    clip = load_bvh(WALK)
+    keys = retarget_bvh_keys(clip, PARAMS)
+    pos, rot = keys.kinematics.forward(keys.qpos)
+    return clip, keys, pos, rot
+
+
+@pytest.fixture(scope="module")
+def jacks():
+    clip = load_bvh(JACKS)
+    keys = retarget_bvh_keys(clip, PARAMS)
+    pos, rot = keys.kinematics.forward(keys.qpos)
+    return clip, keys, pos, rot
+
+
+# ----------------------------------------------------------------------------- parsing
+
+
+def test_cmu_files_parse_with_their_channel_layouts():
+    walk, jacks = load_bvh(WALK), load_bvh(JACKS)
+    assert (walk.n_frames, walk.frames.shape[1], walk.n_joints) == (994, 96, 31)  # mixed CRLF/LF file
+    assert (jacks.n_frames, jacks.frames.shape[1], jacks.n_joints) == (600, 96, 31)
+    assert walk.frame_time_s == pytest.approx(1 / 120, rel=1e-3)
+    assert walk.channels[0] == ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
+    assert walk.channels[walk.joint_index("LeftElbow")] == ("Zrotation", "Xrotation", "Yrotation")
+    assert walk.channels[walk.joint_index("LeftKnee")] == ("Zrotation", "Yrotation", "Xrotation")
+    np.testing.assert_allclose(walk.offsets[walk.joint_index("LeftElbow")], [0.0, -4.25106, 0.0])
+    assert len(walk.end_site_parents) == 7
+    np.testing.assert_allclose(walk.frames[0, :3], [5.2300, 16.9002, -33.8986])
+    np.testing.assert_allclose(jacks.frames[0, :3], [-0.0035, 15.8971, 2.2953])
+    assert "LeftUpLeg" in jacks.joint_names and "LeftHip" in walk.joint_names
+
+
+_SMALL = """HIERARCHY
+ROOT hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Yrotation Xrotation Zrotation
+  JOINT arm
+  {
+    OFFSET 1 2 0
+    CHANNELS 6 Xposition Yposition Zposition Xrotation Zrotation Yrotation
+    JOINT hand
+    {
+      OFFSET 0 3 0
+      CHANNELS 3 Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 0 0 1
+      }
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.04
+1 2 3 90 0 0 0.5 2 0 0 90 0 0 0 0
+0 0 0 0 0 0 1 2 0 0 0 0 30 40 50
+"""
+
+
+def _write(tmp_path: Path, text: str, newline: str = "\n", name: str = "clip.bvh") -> Path:
+    path = tmp_path / name
+    path.write_bytes(text.replace("\n", newline).encode())
+    return path
+
+
+@pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"])
+def test_forward_kinematics_of_a_small_file_matches_hand_computation(tmp_path, newline):
+    clip = load_bvh(_write(tmp_path, _SMALL, newline))
+    assert clip.joint_names == ("hips", "arm", "hand")
+    assert clip.frame_time_s == pytest.approx(0.04) and clip.n_frames == 2
+    pose = clip.forward_kinematics()
+    # frame 0: root at (1,2,3) turned 90 deg about Y; the arm's position channels replace its offset
+    r_root = Rotation.from_euler("YXZ", [90, 0, 0], degrees=True).as_matrix()
+    r_arm = Rotation.from_euler("XZY", [0, 90, 0], degrees=True).as_matrix()
+    arm = np.array([1, 2, 3]) + r_root @ [0.5, 2.0, 0.0]
+    hand = arm + r_root @ r_arm @ [0, 3, 0]
+    np.testing.assert_allclose(pose.positions[0], [[1, 2, 3], arm, hand], atol=1e-12)
+    np.testing.assert_allclose(pose.end_positions[0, 0], hand + r_root @ r_arm @ [0, 0, 1], atol=1e-12)
+    # frame 1: only the hand rotates (Z 30, X 40, Y 50 in that order)
+    r_hand = Rotation.from_euler("ZXY", [30, 40, 50], degrees=True).as_matrix()
+    np.testing.assert_allclose(pose.rotations[1, 2], r_hand, atol=1e-12)
+    np.testing.assert_allclose(pose.end_positions[1, 0], [1, 5, 0] + r_hand @ [0, 0, 1], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "edit, line, words",
+    [
+        (("1 2 3 90 0 0 0.5 2 0 0 90 0 0 0 0", "1 2 3 90 0 0 0.5 2 0 0 90 0 0 0"), 24, "15 channels"),
+        (("0 0 0 0 0 0 1 2 0 0 0 0 30 40 50", "0 0 0 0 0 0 1 2 0 0 0 0 30 x 50"), 25, "not a finite number"),
+        (("Frames: 2", "Frames: 3"), 22, "only 2 data lines"),
+        (("CHANNELS 3 Zrotation Xrotation Yrotation", "CHANNELS 3 Zrotation Xrotation Wrotation"), 13, "unknown channel 'Wrotation'"),
+        (("    OFFSET 0 3 0", "    OFFSET 0 three 0"), 12, "OFFSET of joint 'hand'"),
+        (("Frame Time: 0.04", "Frame Time: -1"), 23, "Frame Time"),
+    ],
+)
+def test_malformed_files_name_the_file_and_the_line(tmp_path, edit, line, words):
+    path = _write(tmp_path, _SMALL.replace(*edit))
+    with pytest.raises(InputFileError) as err:
+        load_bvh(path)
+    message = str(err.value)
+    assert str(path) in message and f"line {line}" in message and words in message
+
+
+def test_missing_and_truncated_files_are_input_errors(tmp_path):
+    with pytest.raises(InputFileError, match="cannot read"):
+        load_bvh(tmp_path / "nope.bvh")
+    with pytest.raises(InputFileError, match="MOTION"):
+        load_bvh(_write(tmp_path, _SMALL.split("MOTION")[0]))
+    with pytest.raises(InputFileError, match="HIERARCHY"):
+        load_bvh(_write(tmp_path, "hello\n"))
+
+
+# ----------------------------------------------------------------------------- mapping
+
+
+def test_both_cmu_naming_schemes_map_onto_the_humanoid():
+    walk_map, jacks_map = map_bvh_joints(load_bvh(WALK)), map_bvh_joints(load_bvh(JACKS))
+    assert walk_map["upperarm_l"] == "LeftShoulder" and walk_map["forearm_r"] == "RightElbow"  # 3dsMax style
+    assert walk_map["thigh_l"] == "LeftHip" and walk_map["abdomen"] == "Chest" and walk_map["thorax"] == "Chest2"
+    assert jacks_map["upperarm_l"] == "LeftArm" and jacks_map["forearm_r"] == "RightForeArm"  # MotionBuilder style
+    assert jacks_map["thigh_l"] == "LeftUpLeg" and jacks_map["abdomen"] == "Spine" and jacks_map["thorax"] == "Spine1"
+    assert set(walk_map) == set(jacks_map) == set(BODY_NAMES)
+
+
+def test_prefixed_names_map_like_plain_ones_and_unknown_skeletons_fail_clearly(tmp_path):
+    text = JACKS.read_text()
+    clip = load_bvh(JACKS)
+    prefixed = text
+    for name in sorted(clip.joint_names, key=len, reverse=True):
+        prefixed = prefixed.replace(f"JOINT {name}\n", f"JOINT mixamorig:{name}\n").replace(f"ROOT {name}\n", f"ROOT mixamorig:{name}\n")
+    mapping = map_bvh_joints(load_bvh(_write(tmp_path, prefixed, name="prefixed.bvh")))
+    assert mapping == {k: f"mixamorig:{v}" for k, v in map_bvh_joints(clip).items()}
+    with pytest.raises(InputFileError, match=r"no joint found for humanoid bodies \['head'\].*name_map"):
+        map_bvh_joints(load_bvh(_write(tmp_path, text.replace("JOINT Head\n", "JOINT Skull\n"), name="skull.bvh")))
+    fixed = map_bvh_joints(load_bvh(tmp_path / "skull.bvh"), name_map={"head": "Skull"})
+    assert fixed["head"] == "Skull"
+
+
+# ----------------------------------------------------------------------------- retargeting
+
+
+def test_inserted_t_pose_is_detected_and_skipped(walk, jacks):
+    assert jacks[1].frames[0] == 1  # converter T-pose in frame 0
+    assert walk[1].frames[0] == 0  # 131_01's frame 0 is a captured frame
+    forced = retarget_bvh_keys(load_bvh(WALK), PARAMS, skip_first_frame=True)
+    assert forced.frames[0] == 1 and len(forced.frames) == 993
+
+
+@pytest.mark.parametrize("which", ["walk", "jacks"])
+def test_retargeted_limbs_point_along_the_bvh_bones(which, request):
+    clip, keys, pos, _ = request.getfixturevalue(which)
+    assert np.all(np.isfinite(keys.qpos))
+    bvh_world = keys.to_world(clip.forward_kinematics(clip.frames[keys.frames]).positions)
+    for a, b in LIMB_SEGMENTS:
+        ja, jb = clip.joint_index(keys.joint_map[a]), clip.joint_index(keys.joint_map[b])
+        d_bvh = bvh_world[:, jb] - bvh_world[:, ja]
+        d_ours = pos[:, B[b]] - pos[:, B[a]]
+        cos = np.sum(d_bvh * d_ours, axis=1) / np.linalg.norm(d_bvh, axis=1) / np.linalg.norm(d_ours, axis=1)
+        error_deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        print(f"{which} {a}: median {np.median(error_deg):.3f} deg, 95th pct {np.percentile(error_deg, 95):.3f} deg, "
+              f"max {error_deg.max():.1f} deg")
+        assert np.median(error_deg) < 1.0
+        assert np.mean(error_deg < 5.0) > 0.9  # the rest: joint limits of the humanoid
+
+
+def test_jumping_jacks_raise_both_wrists_above_the_head_about_four_times(jacks):
+    # "Above the head" = above the head joint: our head body's origin (the neck joint of the
+    # spec) and the BVH's Head joint (CMU's hands reach about 10 cm above it, below the vertex).
+    clip, keys, pos, _ = jacks
+    head = pos[:, B["head"], 2]
+    ours = (pos[:, B["hand_l"], 2] > head) & (pos[:, B["hand_r"], 2] > head)
+    p = clip.forward_kinematics(clip.frames[keys.frames]).positions
+    theirs = (p[:, clip.joint_index("LeftHand"), 1] > p[:, clip.joint_index("Head"), 1]) & (
+        p[:, clip.joint_index("RightHand"), 1] > p[:, clip.joint_index("Head"), 1])
+
+    def cycles(flags):
+        return int(np.sum(flags[1:] & ~flags[:-1]) + flags[0])
+
+    print(f"jumping jacks: wrists above head {cycles(ours)} times (BVH: {cycles(theirs)}), "
+          f"{ours.mean():.0%} of frames")
+    assert cycles(ours) == cycles(theirs)
+    assert 3 <= cycles(ours) <= 5
+    motion = keys.motion()
+    assert motion.duration_s == pytest.approx((599 - 1) / 120, rel=1e-3)
+
+
+def test_walk_travels_more_than_three_metres_facing_plus_x(walk):
+    clip, keys, pos, rot = walk
+    motion = keys.motion()
+    t = np.arange(0.0, motion.duration_s, 0.25)
+    xy = motion.qpos(t)[:, :2]
+    path_m = np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()
+    print(f"131_01: root path {path_m:.2f} m, start-to-end {np.linalg.norm(xy[-1] - xy[0]):.2f} m, "
+          f"{keys.scale_m_per_unit * 100:.3f} cm per BVH unit")
+    assert path_m > 3.0
+    assert xy[-1, 0] - xy[0, 0] > 2.0  # walks forwards, i.e. along +X
+    forward = rot[:30, B["pelvis"], :, 0]
+    assert np.degrees(np.abs(np.arctan2(forward[:, 1], forward[:, 0]))).mean() < 15.0
+
+
+@pytest.mark.parametrize("which", ["walk", "jacks"])
+def test_feet_are_on_the_floor(which, request):
+    _, keys, _, _ = request.getfixturevalue(which)
+    lowest = keys.kinematics.sole_points(keys.qpos)[:, :, 2].min(axis=1)
+    print(f"{which}: lowest sole 5/50/95th pct {np.percentile(lowest, [5, 50, 95]).round(3)} m")
+    assert np.mean(np.abs(lowest) < 0.03) > 0.6
+    assert np.percentile(lowest, 50) > -0.01
+
+
+def test_units_do_not_matter(tmp_path):
+    # the same clip in metres (CMU unit = 1/0.45 inch): identical retargeted motion
+    clip = load_bvh(JACKS)
+    metres_per_unit = 0.0254 / 0.45
+    lines = JACKS.read_text().splitlines()
+    out = []
+    in_motion = False
+    for line in lines:
+        words = line.split()
+        if words and words[0] == "OFFSET":
+            line = "OFFSET " + " ".join(f"{float(v) * metres_per_unit:.9g}" for v in words[1:])
+        elif in_motion and words and not line.startswith(("Frames", "Frame Time")):
+            values = np.array(words, dtype=float)
+            values[:3] *= metres_per_unit
+            line = " ".join(f"{v:.9g}" for v in values)
+        in_motion = in_motion or line.strip() == "MOTION"
+        out.append(line)
+    metric = load_bvh(_write(tmp_path, "\n".join(out) + "\n", name="metres.bvh"))
+    a = retarget_bvh_keys(clip, PARAMS)
+    b = retarget_bvh_keys(metric, PARAMS)
+    assert b.scale_m_per_unit == pytest.approx(a.scale_m_per_unit / metres_per_unit, rel=1e-6)
+    np.testing.assert_allclose(b.qpos, a.qpos, atol=1e-6)
+
+
+def test_motion_interpolates_between_frames_without_jumps(jacks):
+    _, keys, _, _ = jacks
+    motion = retarget_bvh(load_bvh(JACKS), PARAMS)
+    np.testing.assert_allclose(motion.qpos(keys.times_s[:50]), keys.qpos[:50], atol=1e-9)
+    fine = motion.qpos(np.arange(0.0, 1.0, 1.0 / 960.0))  # 8 sub-frames per BVH frame
+    assert np.all(np.isfinite(fine))
+    hinge_step = np.abs(np.diff(fine[:, 7:], axis=0)).max()
+    key_step = np.abs(np.diff(keys.qpos[:121, 7:], axis=0)).max()
+    assert hinge_step <= key_step / 8 * 3.0  # PCHIP: slope at most 3x the secant between keys
+    quat_dot = np.abs(np.sum(fine[1:, 3:7] * fine[:-1, 3:7], axis=1))
+    assert quat_dot.min() > np.cos(0.01)  # root orientation: under 0.02 rad per 1/960 s
+
+
+def test_a_different_body_scales_the_clip(tmp_path):
+    small = retarget_bvh_keys(load_bvh(JACKS), BodyParams(height_m=1.5))
+    large = retarget_bvh_keys(load_bvh(JACKS), BodyParams(height_m=2.0))
+    assert large.scale_m_per_unit / small.scale_m_per_unit == pytest.approx(2.0 / 1.5, rel=1e-6)
+    np.testing.assert_allclose(large.qpos[:, 7:], small.qpos[:, 7:], atol=1e-9)  # same angles
+    rise_small = np.ptp(small.qpos[:, 2])
+    rise_large = np.ptp(large.qpos[:, 2])
+    assert rise_large / rise_small == pytest.approx(2.0 / 1.5, rel=1e-6)
