@@ -88,6 +88,42 @@ def render(scenario: Path = typer.Argument(..., help="scenario TOML"),
                   f"{len(gt.marker_names)} markers, mean shutter sub-frames {gt.n_subframes.mean():.1f}")
 
 
+@app.command()
+@user_errors
+def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
+        out: Path = typer.Option(None, "--out", help="output directory (default: out/<scenario name>)"),
+        set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set sensor.exposure_ms=20")) -> None:
+    """Render, run the capture pipeline, score against ground truth; write metrics.json and report.md."""
+    from simbench.run import run_scenario
+    from simbench.scenario import load_scenario
+
+    sc = load_scenario(scenario, overrides=parse_overrides(set_))
+    out = out or Path("out") / sc.name
+    prog, advance = progress_bar(f"run {sc.name}", sc.n_frames)
+    with prog:
+        result = run_scenario(sc, out, progress=advance)
+    console.print(f"wrote {out}/metrics.json and {out}/report.md")
+    width = max(len(k) for k in result.metrics)
+    for k, v in sorted(result.metrics.items()):
+        print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+
+
+def parse_overrides(items: list[str]) -> dict[str, object]:
+    """``key=value`` strings to a dict; values parsed as TOML (numbers, strings, booleans, arrays)."""
+    import tomllib
+
+    out: dict[str, object] = {}
+    for item in items:
+        if "=" not in item:
+            raise SimbenchInputError(f"--set {item!r}: expected FIELD=VALUE, e.g. sensor.exposure_ms=20")
+        key, value = item.split("=", 1)
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = value
+    return out
+
+
 @app.command("list")
 def list_things() -> None:
     """List motions, lighting presets, marker sets and trackers."""
