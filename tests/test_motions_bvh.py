@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 from mocap.errors import InputFileError
 from simbench.scenes.bvh import load_bvh, map_bvh_joints, retarget_bvh, retarget_bvh_keys
 from simbench.scenes.humanoid import BODY_NAMES, BodyParams
+from simbench.scenes.motions import HumanoidKinematics, make_motion
 
 DATA = Path("/work/shared/data/bvh")
 WALK = DATA / "131_01.bvh"
@@ -273,8 +274,8 @@ def test_motion_interpolates_between_frames_without_jumps(jacks):
     hinge_step = np.abs(np.diff(fine[:, 7:], axis=0)).max()
     key_step = np.abs(np.diff(keys.qpos[:121, 7:], axis=0)).max()
     assert hinge_step <= key_step / 8 * 3.0  # PCHIP: slope at most 3x the secant between keys
-    quat_dot = np.abs(np.sum(fine[1:, 3:7] * fine[:-1, 3:7], axis=1))
-    assert quat_dot.min() > np.cos(0.01)  # root orientation: under 0.02 rad per 1/960 s
+    quat_dot = np.sum(fine[1:, 3:7] * fine[:-1, 3:7], axis=1)
+    assert quat_dot.min() > np.cos(0.01)  # root orientation: under 0.02 rad per 1/960 s, no sign flips
 
 
 def test_a_different_body_scales_the_clip(tmp_path):
@@ -285,3 +286,70 @@ def test_a_different_body_scales_the_clip(tmp_path):
     rise_small = np.ptp(small.qpos[:, 2])
     rise_large = np.ptp(large.qpos[:, 2])
     assert rise_large / rise_small == pytest.approx(2.0 / 1.5, rel=1e-6)
+
+
+def _humanoid_bvh(path: Path, kin, times: np.ndarray, qpos: np.ndarray) -> Path:
+    """Write poses of our own humanoid as a Z-up BVH in centimetres (our body names, our hinges as channels)."""
+    model = kin.model
+    cm = 100.0
+    ends = {
+        "head": [0.0, 0.0, 0.25],
+        "hand_l": [0.0, 0.18, 0.0],
+        "hand_r": [0.0, -0.18, 0.0],
+        "foot_l": list(kin.ball_of_foot_local),
+        "foot_r": list(kin.ball_of_foot_local * [1.0, -1.0, 1.0]),
+    }
+    hinges_of = {b: [] for b in BODY_NAMES}
+    for j in range(1, model.njnt):
+        hinges_of[model.body(model.jnt_bodyid[j]).name].append(j)
+    lines = ["HIERARCHY"]
+    columns = []
+    root_euler = Rotation.from_quat(qpos[:, 3:7], scalar_first=True).as_euler("ZYX", degrees=True)
+
+    def emit(body: str, depth: int) -> None:
+        pad = "  " * depth
+        offset = [0.0, 0.0, 0.0] if body == "pelvis" else model.body_pos[model.body(body).id] * cm
+        lines.append(f"{pad}{'ROOT' if body == 'pelvis' else 'JOINT'} {body}")
+        lines.append(f"{pad}{{")
+        lines.append(f"{pad}  OFFSET {' '.join(f'{v:.9g}' for v in offset)}")
+        if body == "pelvis":
+            lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation")
+            columns.extend([qpos[:, 0] * cm, qpos[:, 1] * cm, qpos[:, 2] * cm, *root_euler.T])
+        else:
+            names = []
+            for j in hinges_of[body]:
+                names.append("XYZ"[int(np.argmax(model.jnt_axis[j]))] + "rotation")
+                columns.append(np.degrees(qpos[:, model.jnt_qposadr[j]]))
+            lines.append(f"{pad}  CHANNELS {len(names)} {' '.join(names)}")
+        kids = [b for b in BODY_NAMES if model.body(b).parentid == model.body(body).id]
+        for kid in kids:
+            emit(kid, depth + 1)
+        if not kids:
+            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET {' '.join(f'{v * cm:.9g}' for v in ends[body])}", f"{pad}  }}"])
+        lines.append(f"{pad}}}")
+
+    emit("pelvis", 0)
+    lines += ["MOTION", f"Frames: {len(times)}", f"Frame Time: {times[1] - times[0]:.9g}"]
+    lines += [" ".join(f"{v:.12g}" for v in row) for row in np.stack(columns, axis=1)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("clip", ["squash_forehand", "walk_in_place"])
+def test_our_own_humanoid_written_as_bvh_retargets_onto_itself(tmp_path, clip):
+    # End to end check of the retargeting maths: a BVH of our own skeleton (rest = T-pose,
+    # same bone lengths in cm, Z-up) must come back as the very poses that wrote it.
+    times = np.arange(0.0, 3.0, 1.0 / 60.0)
+    qpos = make_motion(clip, PARAMS, 3.0).qpos(times)
+    keys = retarget_bvh_keys(
+        load_bvh(_humanoid_bvh(tmp_path / "own.bvh", HumanoidKinematics(PARAMS), times, qpos)),
+        PARAMS, up_axis="z", face_plus_x=False, center_xy=False, skip_first_frame=False,
+    )
+    assert keys.joint_map == {b: b for b in BODY_NAMES}
+    assert keys.scale_m_per_unit == pytest.approx(0.01, rel=1e-9)
+    np.testing.assert_allclose(keys.qpos[:, 7:], qpos[:, 7:], atol=1e-6)
+    np.testing.assert_allclose(np.abs(np.sum(keys.qpos[:, 3:7] * qpos[:, 3:7], axis=1)), 1.0, atol=1e-9)
+    np.testing.assert_allclose(keys.qpos[:, :2], qpos[:, :2], atol=1e-9)
+    dz = keys.qpos[:, 2] - qpos[:, 2]
+    np.testing.assert_allclose(dz, dz[0], atol=1e-9)  # only the floor offset differs ...
+    assert abs(dz[0]) < 0.005  # ... and the clip already stood on the floor

@@ -242,3 +242,16 @@ def test_from_samples_interpolates_keys_smoothly_and_clamps(kin):
     mid = m.qpos(0.5 * (times[1] + times[2]))[elbow]
     assert -0.4 < mid < -0.2  # monotone between keys (no overshoot)
     assert m.duration_s == pytest.approx(times[-1])
+
+
+def test_from_samples_keeps_the_root_quaternion_continuous_through_a_full_turn(kin):
+    times = np.linspace(0.0, 2.0, 41)
+    q = np.tile(tpose_qpos(PARAMS), (41, 1))
+    yaw = np.linspace(0.0, 2.5 * np.pi, 41)  # w = cos(yaw / 2) changes sign
+    q[:, 3], q[:, 6] = np.cos(yaw / 2), np.sin(yaw / 2)
+    q[20:, 3:7] *= -1.0  # keys with arbitrary signs
+    fine = Motion.from_samples("turn", times, q, kin).qpos(np.linspace(0.0, 2.0, 801))
+    steps = np.sum(fine[1:, 3:7] * fine[:-1, 3:7], axis=1)
+    assert steps.min() > np.cos(0.02)  # < 0.04 rad per step and never a sign flip
+    turned = np.unwrap(2.0 * np.arctan2(fine[:, 6], fine[:, 3]))
+    np.testing.assert_allclose(turned[-1] - turned[0], 2.5 * np.pi, atol=1e-9)

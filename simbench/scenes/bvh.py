@@ -468,26 +468,27 @@ def _read_frames(path: Path, lines: list[str], start: int, n_frames: int, n_chan
 
 # Candidate BVH joint names for each humanoid role, tried in order (compared after
 # _normalise_name: case, separators and namespace prefixes like "mixamorig:" ignored).
+# Our own body names come first, so files written by mocap.exports.write_bvh map 1:1.
 # Order matters where schemes disagree: MotionBuilder-style files call the clavicle
 # "LeftShoulder" and the upper arm "LeftArm"; 3dsMax-style files call the upper arm
 # "LeftShoulder" (clavicle "LeftCollar") - so "LeftArm" is tried first.
 _LEFT_ALIASES: dict[str, tuple[str, ...]] = {
-    "upperarm": ("LeftArm", "LeftUpArm", "LeftUpperArm", "lShldr", "L_UpperArm", "UpperArm_L", "LeftShoulder"),
-    "forearm": ("LeftForeArm", "LeftLowArm", "LeftLowerArm", "lForeArm", "L_Forearm", "ForeArm_L", "LeftElbow"),
-    "hand": ("LeftHand", "LeftWrist", "lHand", "L_Hand", "Hand_L"),
-    "thigh": ("LeftUpLeg", "LeftUpperLeg", "LeftThigh", "lThigh", "L_Thigh", "Thigh_L", "LeftHip"),
-    "shank": ("LeftLeg", "LeftLowLeg", "LeftLowerLeg", "LeftShin", "lShin", "L_Calf", "Shin_L", "LeftKnee"),
-    "foot": ("LeftFoot", "LeftAnkle", "lFoot", "L_Foot", "Foot_L"),
+    "upperarm": ("upperarm_l", "LeftArm", "LeftUpArm", "LeftUpperArm", "lShldr", "L_UpperArm", "UpperArm_L", "LeftShoulder"),
+    "forearm": ("forearm_l", "LeftForeArm", "LeftLowArm", "LeftLowerArm", "lForeArm", "L_Forearm", "ForeArm_L", "LeftElbow"),
+    "hand": ("hand_l", "LeftHand", "LeftWrist", "lHand", "L_Hand", "Hand_L"),
+    "thigh": ("thigh_l", "LeftUpLeg", "LeftUpperLeg", "LeftThigh", "lThigh", "L_Thigh", "Thigh_L", "LeftHip"),
+    "shank": ("shank_l", "LeftLeg", "LeftLowLeg", "LeftLowerLeg", "LeftShin", "lShin", "L_Calf", "Shin_L", "LeftKnee"),
+    "foot": ("foot_l", "LeftFoot", "LeftAnkle", "lFoot", "L_Foot", "Foot_L"),
 }
 _TRUNK_ALIASES: dict[str, tuple[str, ...]] = {
-    "abdomen": ("Spine", "Abdomen", "Chest", "Spine0", "LowerBack"),
-    "thorax": ("Spine2", "Spine1", "Chest2", "UpperChest", "Chest"),
-    "head": ("Head",),
+    "abdomen": ("abdomen", "Spine", "Abdomen", "Chest", "Spine0", "LowerBack"),
+    "thorax": ("thorax", "Spine2", "Spine1", "Chest2", "UpperChest", "Chest"),
+    "head": ("head",),
 }
 
 
 def _right_name(name: str) -> str:
-    for left, right in (("Left", "Right"), ("L_", "R_"), ("_L", "_R"), ("l", "r")):
+    for left, right in (("Left", "Right"), ("L_", "R_"), ("_L", "_R"), ("_l", "_r"), ("l", "r")):
         if name.startswith(left) or (left.startswith("_") and name.endswith(left)):
             return name.replace(left, right, 1) if name.startswith(left) else name[: -len(left)] + right
     return name
@@ -513,6 +514,12 @@ _LIMBS = (
     ("thigh_r", "shank_r", "foot_r", "knee_r", ("ankle_r_y", "ankle_r_x"), "pelvis"),
 )
 _TRUNK = (("abdomen", "pelvis", "lumbar"), ("thorax", "abdomen", "thorax"), ("head", "thorax", "neck"))
+# Where each body's bone ends: the next body of its chain, or None at a chain's end (then the
+# BVH's next non-zero child or End Site marks it).
+_BONE_END: Mapping[str, str | None] = MappingProxyType(
+    {"abdomen": "thorax", "thorax": "head", "head": None}
+    | {a: b for upper, middle, end, *_ in _LIMBS for a, b in ((upper, middle), (middle, end), (end, None))}
+)
 _AXIS_LETTER = "XYZ"
 
 # Bending weight of a limb: below sin(5 deg) of flexion the bend plane is undefined and the
@@ -717,147 +724,65 @@ def retarget_bvh_keys(
         raise InputFileError(clip.path, f"only {clip.n_frames} frame(s)", "a motion needs at least two frames after the skipped T-pose")
     keep = np.arange(first, clip.n_frames)
 
-    # BVH axes -> bench axes: Y-up files have the subject's up on +Y; bench is Z-up.
+    # BVH axes -> bench axes: Y-up files have the subject's up on +Y; the bench is Z-up.
     axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) if up_axis == "y" else np.eye(3)
-
-    # ---- reference pose: bone directions and heading of the BVH subject ----
-    ref_frames = np.zeros((1, clip.frames.shape[1])) if reference == "rest" else clip.frames[:1]
-    ref = clip.forward_kinematics(ref_frames)
+    ref = clip.forward_kinematics(np.zeros((1, clip.frames.shape[1])) if reference == "rest" else clip.frames[:1])
     pose = clip.forward_kinematics(clip.frames[keep])
 
-    def bone(p: BvhPose, role: str, end_role: str | None) -> np.ndarray:
+    def bone(p: BvhPose, role: str) -> np.ndarray:
+        """BVH bone vector ``(F, 3)`` of a humanoid body, file units, bench axes."""
         start = p.positions[:, idx[role]]
+        end_role = _BONE_END[role]
         end = p.positions[:, idx[end_role]] if end_role else _chain_end(clip, p.positions, p.end_positions, idx[role])
         return (end - start) @ axes.T
 
-    bone_ends = {"abdomen": "thorax", "thorax": "head", "head": None}
-    for upper, middle, end, *_ in _LIMBS:
-        bone_ends.update({upper: middle, middle: end, end: None})
-
-    # Scale: limb lengths of the model over those of the skeleton (units-agnostic).
-    body_pos = kin.model.body_pos
-    ours = {r: body_pos[kin.model.body(child).id] for r, child in
-            [(u, m) for u, m, *_ in _LIMBS] + [(m, e) for _, m, e, *_ in _LIMBS]}
-    theirs = {r: np.linalg.norm(bone(ref, r, bone_ends[r])[0]) for r in ours}
-    bvh_total = sum(theirs.values())
+    # Scale: limb lengths of the model over those of the skeleton (any units).  Limbs rather
+    # than stature: where a BVH's head end site sits varies between skeletons (CMU's is ~10 cm
+    # below the vertex), while joint-centre distances are what the retargeted motion must fit.
+    limbs = [r for u, m, *_ in _LIMBS for r in (u, m)]
+    bvh_total = sum(np.linalg.norm(bone(ref, r)[0]) for r in limbs)
     if not bvh_total > 0:
         raise InputFileError(clip.path, "the limbs of the skeleton have zero length", "check the OFFSETs of the arm and leg joints")
-    scale = sum(np.linalg.norm(v) for v in ours.values()) / bvh_total
+    body_pos = kin.model.body_pos
+    scale = sum(np.linalg.norm(body_pos[kin.model.body(_BONE_END[r]).id]) for r in limbs) / bvh_total
 
     left = (ref.positions[0, idx["thigh_l"]] - ref.positions[0, idx["thigh_r"]]) @ axes.T
     psi_ref = float(_heading(left)) - 0.5 * np.pi  # left side towards +Y means facing +X
+    align = _alignments(kin, {r: _unit(bone(ref, r)[0]) for r in _BONE_END}, psi_ref)
 
-    # Our bone axes in the body frames (= T-pose world directions).
-    def our_axis(role: str) -> np.ndarray:
-        end = bone_ends[role]
-        if role == "head" or role in ("abdomen", "thorax"):
-            return np.array([0.0, 0.0, 1.0])
-        return _unit(body_pos[kin.model.body(end).id])
-
-    # Per-body alignment A: our T-pose -> the BVH reference pose (bench axes).
-    # The pelvis only turns; hands and feet keep their reference relation to the forearm /
-    # shank (CMU rest skeletons splay the legs ~20 deg with the feet rolled along, so aligning
-    # the feet on their own would leave them rolled by as much once the legs are straight).
-    turn = _rz(psi_ref)
-    align: dict[str, np.ndarray] = {"pelvis": turn}
-    for role in _ROLES[1:]:
-        if role.startswith(("hand", "foot")):
-            continue
-        d_ref = _unit(bone(ref, role, bone_ends[role])[0])
-        align[role] = _min_rotation(turn @ our_axis(role), d_ref) @ turn
-    for _, middle, end, *_ in _LIMBS:
-        align[end] = align[middle]
-    # ... except for the foot's pitch: the ankle -> toe-base bone of the reference pose gets
-    # the pitch of our ankle -> ball-of-foot direction (CMU rest feet are ~10 deg dorsiflexed
-    # compared with a foot flat on the floor).
-    ball = _ball_of_foot(kin)
-    for foot in ("foot_l", "foot_r"):
-        v = align[foot].T @ _unit(bone(ref, foot, None)[0])
-        ours_pitch = np.arctan2(-ball[2], ball[0])
-        align[foot] = align[foot] @ Rotation.from_euler("y", np.arctan2(-v[2], v[0]) - ours_pitch).as_matrix()
-
-    # Target world rotation of every body: the BVH joint's rotation since the reference pose.
+    # Target world rotation of every body: the BVH joint's rotation since the reference pose,
+    # applied to our body as it sits in that reference pose.
     targets = {}
     for role in _ROLES:
         relative = pose.rotations[:, idx[role]] @ ref.rotations[0, idx[role]].T
         targets[role] = axes @ relative @ axes.T @ align[role]
-
     heading = np.eye(3)
     if face_plus_x:
         n0 = max(1, min(len(keep), int(round(0.25 / clip.frame_time_s))))
-        fwd = targets["pelvis"][:n0, :, 0]
-        psi0 = float(np.arctan2(np.mean(np.sin(_heading(fwd))), np.mean(np.cos(_heading(fwd)))))
-        heading = _rz(-psi0)
+        psi = _heading(targets["pelvis"][:n0, :, 0])
+        heading = _rz(-float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi)))))
     targets = {r: heading @ t for r, t in targets.items()}
-    dirs = {r: _unit(bone(pose, r, bone_ends[r]) @ heading.T) for r in bone_ends}
+    directions = {r: _unit(bone(pose, r) @ heading.T) for r in _BONE_END}
 
-    # ---- solve the hinges, parents first ----
-    hinges = np.zeros((len(keep), len(HINGE_NAMES)))
-    hinge_col = {n: i for i, n in enumerate(HINGE_NAMES)}
-    world = {"pelvis": targets["pelvis"]}
-
-    def set_joint(names: tuple[str, ...], local: np.ndarray) -> np.ndarray:
-        """Decompose ``local`` (F,3,3) into ``names`` (intrinsic, hinge order), clamp, return the realised rotation."""
-        axes_seq = [_joint_axis(kin, n) for n in names]
-        free = [a for a in "XYZ" if a not in axes_seq]
-        euler = Rotation.from_matrix(local).as_euler("".join(axes_seq + free))
-        values = np.unwrap(euler[:, : len(names)], axis=0)
-        cols = [hinge_col[n] for n in names]
-        values = np.clip(values, kin.hinge_lo[cols], kin.hinge_hi[cols])
-        hinges[:, cols] = values
-        return Rotation.from_euler("".join(axes_seq), values).as_matrix()
-
-    for role, parent, prefix in _TRUNK:
-        local = np.swapaxes(world[parent], 1, 2) @ targets[role]
-        world[role] = world[parent] @ set_joint((f"{prefix}_x", f"{prefix}_y", f"{prefix}_z"), local)
-
-    for upper, middle, end, mid_hinge, end_hinges, parent in _LIMBS:
-        side = upper[-1]
-        upper_names = (f"shoulder_{side}_x", f"shoulder_{side}_y", f"shoulder_{side}_z") if upper.startswith("upperarm") \
-            else (f"hip_{side}_x", f"hip_{side}_y", f"hip_{side}_z")
-        u = our_axis(upper)
-        e_h = kin.model.jnt_axis[kin.model.joint(mid_hinge).id].copy()
-        lo, hi = kin.hinge_range(mid_hinge)
-        flex = 1.0 if abs(hi) > abs(lo) else -1.0
-        d1, d2 = dirs[upper], dirs[middle]
-        q1 = _limb_upper_rotation(d1, d2, targets[upper], u, e_h, flex)
-        local = np.swapaxes(world[parent], 1, 2) @ q1
-        q1_real = world[parent] @ set_joint(upper_names, local)
-        # hinge angle that best reaches the lower segment's direction from the realised upper segment
-        axis_w = q1_real @ e_h
-        u_w = q1_real @ u
-        d2p = d2 - np.sum(d2 * axis_w, axis=1, keepdims=True) * axis_w
-        theta = np.arctan2(np.sum(np.cross(u_w, d2p) * axis_w, axis=1), np.sum(u_w * d2p, axis=1))
-        theta = np.clip(theta, lo, hi)
-        hinges[:, hinge_col[mid_hinge]] = theta
-        q2 = q1_real @ Rotation.from_rotvec(theta[:, None] * e_h).as_matrix()
-        local_end = np.swapaxes(q2, 1, 2) @ targets[end]
-        set_joint(end_hinges, local_end)
-
-    root_quat = Rotation.from_matrix(targets["pelvis"]).as_quat(scalar_first=True)
-    hip_mid = 0.5 * (pose.positions[:, idx["thigh_l"]] + pose.positions[:, idx["thigh_r"]])
+    hinges = _solve_hinges(kin, targets, directions)
     world_from_file = heading @ axes
-    root = scale * hip_mid @ world_from_file.T
-
+    hip_mid = 0.5 * (pose.positions[:, idx["thigh_l"]] + pose.positions[:, idx["thigh_r"]])
     qpos = np.zeros((len(keep), len(HINGE_NAMES) + 7))
-    qpos[:, :3] = root
-    qpos[:, 3:7] = root_quat
+    qpos[:, :3] = scale * hip_mid @ world_from_file.T
+    qpos[:, 3:7] = Rotation.from_matrix(targets["pelvis"]).as_quat(scalar_first=True)
     qpos[:, 7:] = hinges
 
     # Floor at z = 0: the lowest sole point of each frame, at its 25th percentile over the clip
     # (robust to jumps, where both feet leave the floor), is put on the floor.
-    sole_min = kin.sole_points(qpos)[:, :, 2].min(axis=1)
     translation = np.zeros(3)
-    translation[2] = -float(np.percentile(sole_min, 25.0))
+    translation[2] = -float(np.percentile(kin.sole_points(qpos)[:, :, 2].min(axis=1), 25.0))
     if center_xy:
-        lo_xy, hi_xy = root[:, :2].min(axis=0), root[:, :2].max(axis=0)
-        translation[:2] = -0.5 * (lo_xy + hi_xy)
+        translation[:2] = -0.5 * (qpos[:, :2].min(axis=0) + qpos[:, :2].max(axis=0))
     qpos[:, :3] += translation
 
-    times = (keep - keep[0]) * clip.frame_time_s
     return RetargetedBvh(
         name=name or clip.path.stem,
-        times_s=times,
+        times_s=(keep - keep[0]) * clip.frame_time_s,
         qpos=qpos,
         joint_map=joint_map,
         frames=keep,
@@ -868,19 +793,95 @@ def retarget_bvh_keys(
     )
 
 
-# Ball of the foot (metatarsophalangeal joints), which CMU's toe-base joint marks: 73 % of
-# the foot length from the heel and a quarter of the ankle height above the sole (typical
-# adult foot proportions; the humanoid's foot is a box, so this point is not in the MJCF).
-_BALL_FRACTION_OF_LENGTH = 0.73
-_BALL_FRACTION_OF_ANKLE_HEIGHT = 0.25
+def _our_bone_axis(kin: HumanoidKinematics, role: str) -> np.ndarray:
+    """Unit bone axis of a humanoid body in its own frame (= its T-pose world direction)."""
+    end = _BONE_END[role]
+    if role in ("abdomen", "thorax", "head"):
+        return np.array([0.0, 0.0, 1.0])
+    if role.startswith("foot"):
+        return _unit(kin.ball_of_foot_local * (1.0, 1.0 if role.endswith("_l") else -1.0, 1.0))
+    if role.startswith("hand"):
+        return _our_bone_axis(kin, role.replace("hand", "forearm"))  # the hand continues the forearm
+    return _unit(kin.model.body_pos[kin.model.body(end).id])
 
 
-def _ball_of_foot(kin: HumanoidKinematics) -> np.ndarray:
-    """Ball of the left foot in the foot frame ``(3,)`` metres (the right one mirrors it)."""
-    geom = kin.model.geom("foot_l_col")
-    (cx, _, cz), (hx, _, hz) = geom.pos, geom.size
-    heel, toe, sole = cx - hx, cx + hx, cz - hz
-    return np.array([heel + _BALL_FRACTION_OF_LENGTH * (toe - heel), 0.0, sole * (1.0 - _BALL_FRACTION_OF_ANKLE_HEIGHT)])
+def _alignments(kin: HumanoidKinematics, ref_dirs: dict[str, np.ndarray], psi_ref: float) -> dict[str, np.ndarray]:
+    """Orientation ``(3, 3)`` of each humanoid body when the BVH is in its reference pose.
+
+    The pelvis only turns to the reference heading; trunk, head and limb segments turn their
+    bone axis onto the BVH's reference bone (smallest rotation after the heading turn); hands
+    and feet keep their reference relation to the forearm / shank (CMU rest skeletons splay
+    the legs ~20 deg with the feet rolled along, so aligning the feet on their own would leave
+    them rolled by as much once the legs are straight), except for the foot's pitch: the
+    reference ankle -> toe-base bone gets the pitch of our ankle -> ball-of-foot direction
+    (CMU rest feet are ~10 deg dorsiflexed compared with a foot flat on the floor).
+    """
+    turn = _rz(psi_ref)
+    align: dict[str, np.ndarray] = {"pelvis": turn}
+    for role in _ROLES[1:]:
+        if not role.startswith(("hand", "foot")):
+            align[role] = _min_rotation(turn @ _our_bone_axis(kin, role), ref_dirs[role]) @ turn
+    for _, middle, end, *_ in _LIMBS:
+        align[end] = align[middle]
+    ball = kin.ball_of_foot_local
+    for foot in ("foot_l", "foot_r"):
+        v = align[foot].T @ ref_dirs[foot]
+        pitch = np.arctan2(-v[2], v[0]) - np.arctan2(-ball[2], ball[0])
+        align[foot] = align[foot] @ Rotation.from_euler("y", pitch).as_matrix()
+    return align
+
+
+def _solve_hinges(kin: HumanoidKinematics, targets: dict[str, np.ndarray], directions: dict[str, np.ndarray]) -> np.ndarray:
+    """Hinge angles ``(F, 33)`` that realise the target body rotations, parents first.
+
+    Parameters
+    ----------
+    targets : dict body -> (F, 3, 3)
+        Wanted world rotation of each body.
+    directions : dict body -> (F, 3)
+        Wanted world direction of each bone (unit).
+    """
+    n = len(targets["pelvis"])
+    hinges = np.zeros((n, len(HINGE_NAMES)))
+    column = {name: i for i, name in enumerate(HINGE_NAMES)}
+    world = {"pelvis": targets["pelvis"]}
+
+    def set_joint(names: tuple[str, ...], local: np.ndarray) -> np.ndarray:
+        """Decompose ``local`` (F, 3, 3) into the hinges ``names`` (intrinsic, in hinge order; a
+        missing axis goes last and is dropped), unwrap over time, clamp to the ranges; return
+        the rotation the clamped hinges make."""
+        axes_seq = [_joint_axis(kin, h) for h in names]
+        free = [a for a in "XYZ" if a not in axes_seq]
+        euler = Rotation.from_matrix(local).as_euler("".join(axes_seq + free))
+        cols = [column[h] for h in names]
+        values = np.clip(np.unwrap(euler[:, : len(names)], axis=0), kin.hinge_lo[cols], kin.hinge_hi[cols])
+        hinges[:, cols] = values
+        return Rotation.from_euler("".join(axes_seq), values).as_matrix()
+
+    for role, parent, prefix in _TRUNK:
+        local = np.swapaxes(world[parent], 1, 2) @ targets[role]
+        world[role] = world[parent] @ set_joint((f"{prefix}_x", f"{prefix}_y", f"{prefix}_z"), local)
+
+    for upper, middle, end, mid_hinge, end_hinges, parent in _LIMBS:
+        side = upper[-1]
+        joint = "shoulder" if upper.startswith("upperarm") else "hip"
+        u = _our_bone_axis(kin, upper)
+        e_h = kin.model.jnt_axis[kin.model.joint(mid_hinge).id].copy()
+        lo, hi = kin.hinge_range(mid_hinge)
+        flex = 1.0 if abs(hi) > abs(lo) else -1.0
+        d2 = directions[middle]
+        q1 = _limb_upper_rotation(directions[upper], d2, targets[upper], u, e_h, flex)
+        local = np.swapaxes(world[parent], 1, 2) @ q1
+        q1 = world[parent] @ set_joint((f"{joint}_{side}_x", f"{joint}_{side}_y", f"{joint}_{side}_z"), local)
+        # the hinge angle that best reaches the lower bone's direction from the realised upper segment
+        axis_w, u_w = q1 @ e_h, q1 @ u
+        d2p = d2 - np.sum(d2 * axis_w, axis=1, keepdims=True) * axis_w
+        theta = np.arctan2(np.sum(np.cross(u_w, d2p) * axis_w, axis=1), np.sum(u_w * d2p, axis=1))
+        theta = np.clip(theta, lo, hi)
+        hinges[:, column[mid_hinge]] = theta
+        q2 = q1 @ Rotation.from_rotvec(theta[:, None] * e_h).as_matrix()
+        set_joint(end_hinges, np.swapaxes(q2, 1, 2) @ targets[end])
+    return hinges
 
 
 def _joint_axis(kin: HumanoidKinematics, hinge: str) -> str:

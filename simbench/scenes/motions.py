@@ -50,6 +50,12 @@ T_POSE_BLEND_S = 1.0
 _FLOOR_GRID_HZ = 240.0  # sampling of the feet-on-floor correction (interpolated in between)
 _SOFTMIN_M = 0.0015  # temperature of the soft minimum over sole points (keeps the root height C-infinity)
 
+# Ball of the foot (metatarsophalangeal joints): 73 % of the foot length from the heel and a
+# quarter of the ankle height above the sole (typical adult foot proportions).  The humanoid's
+# foot is a box, so this point is not in the MJCF; BVH toe-base joints mark it.
+_BALL_FRACTION_OF_LENGTH = 0.73
+_BALL_FRACTION_OF_ANKLE_HEIGHT = 0.25
+
 _N_HINGES = len(HINGE_NAMES)
 _HINGE_INDEX = {name: i for i, name in enumerate(HINGE_NAMES)}
 
@@ -136,13 +142,18 @@ class Motion:
         rel = times_s - times_s[0]
         position = PchipInterpolator(rel, qpos[:, :3], axis=0)
         hinges = PchipInterpolator(rel, kinematics.clamp(qpos[:, 7:]), axis=0)
-        orientation = RotationSpline(rel, Rotation.from_quat(qpos[:, 3:7], scalar_first=True))
+        # Key quaternions made sign-continuous, so that evaluated ones can follow their sign.
+        keys = qpos[:, 3:7] / np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)
+        flips = np.cumsum(np.concatenate([[0], np.sum(keys[1:] * keys[:-1], axis=1) < 0])) % 2
+        keys = keys * np.where(flips[:, None] == 1, -1.0, 1.0)
+        orientation = RotationSpline(rel, Rotation.from_quat(keys, scalar_first=True))
 
         def evaluate(t: np.ndarray) -> np.ndarray:
             out = np.empty((len(t), NQ))
             out[:, :3] = position(t)
             quat = orientation(t).as_quat(scalar_first=True)
-            out[:, 3:7] = quat * np.where(quat[:, :1] < 0, -1.0, 1.0)  # w >= 0, one hemisphere
+            nearest = keys[np.clip(np.searchsorted(rel, t), 0, len(rel) - 1)]
+            out[:, 3:7] = quat * np.where(np.sum(quat * nearest, axis=1, keepdims=True) < 0, -1.0, 1.0)
             out[:, 7:] = kinematics.clamp(hinges(t))
             return out
 
@@ -165,6 +176,8 @@ class HumanoidKinematics:
         Pelvis height in the T-pose with the soles on the floor, metres.
     sole_points_local : (8, 3) float
         Four sole corners of each foot (``foot_l`` then ``foot_r``) in the foot body frame, metres.
+    ball_of_foot_local : (3,) float
+        Ball of the left foot in its body frame, metres (the right one has the same coordinates).
     """
 
     def __init__(self, params: BodyParams) -> None:
@@ -188,6 +201,11 @@ class HumanoidKinematics:
             (cx, cy, cz), (hx, hy, hz) = geom.pos, geom.size
             corners.append([[cx + sx * hx, cy + sy * hy, cz - hz] for sx in (-1, 1) for sy in (-1, 1)])
         self.sole_points_local = np.array(corners, dtype=np.float64).reshape(8, 3)
+        (cx, _, cz), (hx, _, hz) = self.model.geom("foot_l_col").pos, self.model.geom("foot_l_col").size
+        heel, toe, sole = cx - hx, cx + hx, cz - hz
+        self.ball_of_foot_local = np.array(
+            [heel + _BALL_FRACTION_OF_LENGTH * (toe - heel), 0.0, sole * (1.0 - _BALL_FRACTION_OF_ANKLE_HEIGHT)]
+        )
         at_origin = np.zeros(NQ)
         at_origin[3] = 1.0
         self.standing_height_m = float(-self.sole_points(at_origin[None])[0, :, 2].min())
