@@ -1,0 +1,216 @@
+"""Simulate a scene: kinematic humanoid, physical props, states at any instants.
+
+The humanoid is driven kinematically: before every physics step its qpos is set from
+the motion and its qvel from the finite difference over that step
+(``mj_differentiatePos``, so the free joint's quaternion is handled exactly); its
+segments are made quasi-infinitely heavy in the simulation's copy of the model, so a
+ball bounces off a moving limb as off a moving wall and never pushes the body.
+Props integrate by MuJoCo physics on a fixed grid ``k * dt`` from t = 0 (their
+initial conditions are at t = 0), whatever instants are asked for: a state at time
+``t`` between grid points comes from one partial step of length ``t - k dt`` taken on
+a scratch copy, so the props' trajectory does not depend on the sampling (blur
+sub-frames or not).  Everything is single-threaded MuJoCo: the same inputs give
+bitwise identical states.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from simbench.scenes.humanoid import BODY_NAMES, NQ, NV
+from simbench.scenes.props import BallProp, MovingProp
+from simbench.scenes.scene import PHYSICS_TIMESTEP_S, Scene
+
+__all__ = ["SceneStates", "simulate", "KINEMATIC_MASS_SCALE"]
+
+# Mass/inertia scale that makes the humanoid's segments immovable for the contact solver.
+KINEMATIC_MASS_SCALE = 1e6
+
+
+@dataclass(frozen=True, eq=False)
+class SceneStates:
+    """States of a scene at T instants.
+
+    Attributes
+    ----------
+    times : (T,) float
+        Seconds.
+    qpos : (T, nq) float
+        MuJoCo qpos of the whole scene (humanoid first: ``qpos[:, :40]``).
+    body_xpos : (T, nbody, 3) float
+        World position of every MuJoCo body (index = :meth:`Scene.body_id`), metres.
+    body_xmat : (T, nbody, 3, 3) float
+        World orientation of every body.
+    marker_xpos : (T, M, 3) float
+        Marker centres, world metres, in ``marker_names`` order (M = 0 without markers).
+    joint_centres : (T, 16, 3) float
+        Humanoid body origins (= joint centres), world metres, in ``BODY_NAMES`` order.
+    prop_poses : dict[str, (T, 4, 4) float]
+        World pose of each prop's frame (its render mesh is in that frame).
+    marker_names : tuple[str, ...]
+    body_names : tuple[str, ...]
+        Name of every MuJoCo body (index = body id; 0 is ``"world"``).
+    """
+
+    times: np.ndarray
+    qpos: np.ndarray
+    body_xpos: np.ndarray
+    body_xmat: np.ndarray
+    marker_xpos: np.ndarray
+    joint_centres: np.ndarray
+    prop_poses: dict
+    marker_names: tuple = ()
+    body_names: tuple = ()
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+
+def _check_times(times) -> np.ndarray:
+    t = np.asarray(times, dtype=np.float64)
+    if t.ndim != 1 or len(t) == 0:
+        raise ValueError(f"simulate: times must be a non-empty 1-D array of seconds, got shape {t.shape}")
+    if not np.isfinite(t).all():
+        raise ValueError("simulate: times must be finite")
+    if t[0] < 0.0:
+        raise ValueError(f"simulate: times start at t = 0 (props' initial state); got {t[0]}")
+    if len(t) > 1 and (np.diff(t) < 0).any():
+        i = int(np.flatnonzero(np.diff(t) < 0)[0])
+        raise ValueError(f"simulate: times must be increasing; times[{i + 1}] = {t[i + 1]} < times[{i}] = {t[i]}")
+    return t
+
+
+def _kinematic_model(scene: Scene) -> mujoco.MjModel:
+    """A private copy of the scene's model whose humanoid is immovable by contacts."""
+    model = mujoco.MjModel.from_xml_string(scene.mjcf_xml)
+    ids = [model.body(n).id for n in BODY_NAMES]
+    model.body_mass[ids] *= KINEMATIC_MASS_SCALE
+    model.body_inertia[ids] *= KINEMATIC_MASS_SCALE
+    mujoco.mj_setConst(model, mujoco.MjData(model))  # refresh the constants derived from masses
+    return model
+
+
+def simulate(
+    scene: Scene,
+    humanoid_qpos_fn: Callable[[float], np.ndarray],
+    times,
+    timestep_s: float = PHYSICS_TIMESTEP_S,
+) -> SceneStates:
+    """States of the scene at the given instants.
+
+    Parameters
+    ----------
+    scene : Scene
+    humanoid_qpos_fn : callable
+        ``f(t: float) -> (40,)`` humanoid MuJoCo qpos at time ``t`` seconds (e.g.
+        ``Motion.qpos``).
+    times : (T,) float
+        Increasing instants in seconds, ``>= 0``, any spacing (sub-frame times too).
+    timestep_s : float
+        Physics step of the props.
+
+    Returns
+    -------
+    SceneStates
+    """
+    t_req = _check_times(times)
+    if not 1e-5 <= timestep_s <= 0.01:
+        raise ValueError(f"simulate: timestep_s = {timestep_s} is out of range (1e-5 .. 0.01 s)")
+    model = _kinematic_model(scene)
+    model.opt.timestep = timestep_s
+    data = mujoco.MjData(model)
+    scratch = mujoco.MjData(model)
+
+    def q_h(t: float) -> np.ndarray:
+        q = np.asarray(humanoid_qpos_fn(float(t)), dtype=np.float64)
+        if q.shape != (NQ,) or not np.isfinite(q).all():
+            raise ValueError(f"simulate: humanoid_qpos_fn({t}) must return {NQ} finite values, got shape {q.shape}")
+        return q
+
+    # --- initial state (t = 0) ----------------------------------------------------
+    data.qpos[:NQ] = q_h(0.0)
+    for p in scene.props:
+        if isinstance(p, BallProp):
+            adr = model.jnt_dofadr[model.joint(f"{p.name}_free").id]
+            data.qvel[adr : adr + 6] = p.initial_qvel()
+        elif isinstance(p, MovingProp):
+            adr = model.jnt_dofadr[model.joint(f"{p.name}_slide").id]
+            data.qvel[adr] = p.initial_qvel()[0]
+    dynamic = any(isinstance(p, (BallProp, MovingProp)) for p in scene.props)
+
+    full_q1 = np.empty(model.nq)
+    full_q2 = np.empty(model.nq)
+    vel = np.empty(model.nv)
+
+    def drive(d: mujoco.MjData, qa: np.ndarray, qb: np.ndarray, dt: float) -> None:
+        """Put the humanoid at qa with the velocity that reaches qb after dt."""
+        full_q1[:] = d.qpos
+        full_q2[:] = d.qpos
+        full_q1[:NQ] = qa
+        full_q2[:NQ] = qb
+        mujoco.mj_differentiatePos(model, vel, dt, full_q1, full_q2)
+        d.qpos[:NQ] = qa
+        d.qvel[:NV] = vel[:NV]
+
+    T = len(t_req)
+    site_ids = np.array([model.site(m.name).id for m in scene.marker_specs], dtype=np.int64)
+    body_ids = np.array([model.body(n).id for n in BODY_NAMES], dtype=np.int64)
+    prop_ids = {p.name: model.body(p.name).id for p in scene.props}
+    qpos = np.empty((T, model.nq))
+    xpos = np.empty((T, model.nbody, 3))
+    xmat = np.empty((T, model.nbody, 3, 3))
+    markers = np.empty((T, len(site_ids), 3))
+
+    k = 0  # grid index: data holds the state at k * dt
+    q_k = q_h(0.0)
+    for i, ts in enumerate(t_req):
+        if dynamic:
+            # whole steps on the fixed grid up to ts
+            while (k + 1) * timestep_s <= ts + 1e-12:
+                q_next = q_h((k + 1) * timestep_s)
+                drive(data, q_k, q_next, timestep_s)
+                mujoco.mj_step(model, data)
+                k += 1
+                q_k = q_next
+            tau = ts - k * timestep_s
+            mujoco.mj_copyData(scratch, model, data)
+            if tau > 1e-12:
+                q_s = q_h(ts)
+                drive(scratch, q_k, q_s, tau)
+                model.opt.timestep = tau
+                mujoco.mj_step(model, scratch)
+                model.opt.timestep = timestep_s
+            else:
+                q_s = q_k
+        else:
+            q_s = q_h(ts)
+        scratch.qpos[:NQ] = q_s
+        mujoco.mj_kinematics(model, scratch)
+        qpos[i] = scratch.qpos
+        xpos[i] = scratch.xpos
+        xmat[i] = scratch.xmat.reshape(-1, 3, 3)
+        if len(site_ids):
+            markers[i] = scratch.site_xpos[site_ids]
+
+    prop_poses = {}
+    for name, bid in prop_ids.items():
+        P = np.zeros((T, 4, 4))
+        P[:, :3, :3] = xmat[:, bid]
+        P[:, :3, 3] = xpos[:, bid]
+        P[:, 3, 3] = 1.0
+        prop_poses[name] = P
+    return SceneStates(
+        times=t_req.copy(),
+        qpos=qpos,
+        body_xpos=xpos,
+        body_xmat=xmat,
+        marker_xpos=markers,
+        joint_centres=xpos[:, body_ids].copy(),
+        prop_poses=prop_poses,
+        marker_names=tuple(m.name for m in scene.marker_specs),
+        body_names=tuple(model.body(b).name for b in range(model.nbody)),
+    )
