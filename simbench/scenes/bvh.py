@@ -13,7 +13,24 @@ Conventions of a BVH file, as read here
   usual reading: roots have a zero offset, and exporters that give every joint 6 channels write
   the offset itself into the position channels).
 - Units are whatever the file uses; :func:`retarget_bvh` finds the scale from the skeleton's
-  height, so CMU units (1 unit = 1/0.45 inch = 5.644 cm), centimetres, inches or metres all work.
+  limb lengths, so CMU units (1 unit = 1/0.45 inch = 5.644 cm), centimetres, inches or metres
+  all work.
+
+Retargeting, in short
+---------------------
+1. Map humanoid bodies to BVH joints by name (:data:`ROLE_ALIASES`; both CMU schemes, our own
+   body names, ``mixamorig:``-style prefixes; ``name_map`` overrides).
+2. Reference pose (the OFFSETs, or frame 0): each of our bodies is turned so that its bone
+   points along the BVH's reference bone (:func:`_alignments`).
+3. Every frame, each body's target world rotation is the BVH joint's rotation since the
+   reference, applied to that aligned body; trunk and neck hinges follow by XYZ decomposition
+   relative to the realised parent; limbs are solved so that both segments point along the
+   BVH bones (the 1-DoF elbow/knee picks the upper segment's twist), hands and feet take the
+   two wrist/ankle hinges that keep their long axis; everything is clamped to the ranges.
+4. Root: hip-joint midpoint, scaled, Y-up to Z-up, turned to face +X, floor at z = 0.
+
+A BVH written from our own humanoid (our body names, T-pose rest) retargets onto itself
+exactly (``tests/test_motions_bvh.py``).
 """
 
 from __future__ import annotations
