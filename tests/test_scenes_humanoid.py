@@ -58,7 +58,7 @@ def test_names_and_order():
 @pytest.mark.parametrize("height", [1.55, 1.95])
 def test_mujoco_pinocchio_fk_agree(height, tmp_path):
     params = BodyParams(height_m=height, mass_kg=50.0 + 20.0 * (height - 1.5))
-    m, pm = _models(params, tmp_path, marker_set=None)
+    m, pm = _models(params, tmp_path, marker_set="plugin_gait_full")
     pd = pm.createData()
     d = mujoco.MjData(m)
 
@@ -80,6 +80,9 @@ def test_mujoco_pinocchio_fk_agree(height, tmp_path):
 
     frame_ids = [pm.getFrameId(b, pin.BODY) for b in BODY_NAMES]
     body_ids = [m.body(b).id for b in BODY_NAMES]
+    site_names = [m.site(i).name for i in range(m.nsite)]
+    assert len(site_names) == 39
+    site_frames = [pm.getFrameId(n) for n in site_names]
     q_all = _random_qpos(np.random.default_rng(7), m, 200)
     worst_pos, worst_rot = 0.0, 0.0
     for q in q_all:
@@ -90,6 +93,8 @@ def test_mujoco_pinocchio_fk_agree(height, tmp_path):
         for f, b in zip(frame_ids, body_ids):
             worst_pos = max(worst_pos, np.abs(pd.oMf[f].translation - d.xpos[b]).max())
             worst_rot = max(worst_rot, np.abs(pd.oMf[f].rotation - d.xmat[b].reshape(3, 3)).max())
+        for i, f in enumerate(site_frames):  # marker sites become Pinocchio frames
+            worst_pos = max(worst_pos, np.abs(pd.oMf[f].translation - d.site_xpos[i]).max())
     print(f"height {height}: max |dpos| = {worst_pos:.2e} m, max |dR| = {worst_rot:.2e}")
     assert worst_pos < 1e-9
     assert worst_rot < 1e-9

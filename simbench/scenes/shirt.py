@@ -163,7 +163,7 @@ def shirt_face_patch(body: str, face_centres_m: np.ndarray, dims: BodyDims) -> n
         out[:] = np.where(prox, pid("shoulder", side), pid("upperarm", side))
         return out
 
-    # torso: left/right by the sign of y (after mirroring), front/back by the sign of x
+    # torso (not mirrored): left/right by the sign of y, front/back by the sign of x
     r = dims.radius
     front = x >= 0.0
     if body == "thorax":
