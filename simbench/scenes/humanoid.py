@@ -210,8 +210,7 @@ def humanoid_bodies(params: BodyParams) -> list[BodySpec]:
             (0.5 * d.foot_length, 0.5 * d.foot_width, 0.5 * d.ankle_height),
         ),
     }
-    mass_key = {"upperarm": "upperarm", "forearm": "forearm", "hand": "hand", "thigh": "thigh", "shank": "shank", "foot": "foot"}
-    for seg in mass_key:
+    for seg in ("upperarm", "forearm", "hand", "thigh", "shank", "foot"):  # mirror the left limbs
         left = f"{seg}_l"
         p = pos[left]
         pos[f"{seg}_r"] = (p[0], -p[1], p[2])
