@@ -30,7 +30,8 @@ def _table(metrics: dict[str, float]) -> str:
     return "\n".join(lines)
 
 
-def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float], timings: dict[str, float]) -> Path:
+def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float], timings: dict[str, float],
+                     extra_sections: list[str] | None = None) -> Path:
     """Write ``report.md`` and its PNG plots into ``out``."""
     figs = out / "plots"
     figs.mkdir(exist_ok=True)
@@ -65,6 +66,7 @@ def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float]
         parts += ["## Pipeline timings", "", "| stage | ms |", "|---|---|"]
         parts += [f"| {k} | {v:.1f} |" for k, v in capture.timings_ms.items()]
         parts += [""]
+    parts += list(extra_sections or [])
     parts += ["## Wall time", "", "| phase | s |", "|---|---|"] + [f"| {k} | {v:.2f} |" for k, v in timings.items()] + [""]
     parts += ["## Files", "", "- `videos/*.mp4`: what each camera saw", "- `ground_truth/`: exact truth (format in `simbench/ground_truth.py`)",
               "- `exports/`: `markers.c3d`, `markers.trc`, `markers.csv`, `skeleton.bvh`, `calibration.yml`, `label_template.csv`",

@@ -110,8 +110,9 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             if fo.index in keep:
                 kept_frames[fo.index] = fo.images.copy()
 
+        shirt = scenario.subject.shirt
         try:
-            seq = render_frames(bench, on_frame=on_frame, keep_frames=False, keep_ids=False, progress=progress)
+            seq = render_frames(bench, on_frame=on_frame, keep_frames=shirt, keep_ids=shirt, progress=progress)
         finally:
             if writer is not None:
                 writer[1]()
@@ -129,6 +130,15 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                                               pipeline_params(scenario), rng, subject, stream.ms)
             timings["pipeline_s"] = time.perf_counter() - t1
             metrics.update(score_markers(gt, capture))
+        shirt_report: list[str] = []
+        if shirt:
+            # The colour-shirt pipeline of seed 001 (simbench/shirt_run.py).
+            from simbench.shirt_run import run_shirt_capture
+
+            t1 = time.perf_counter()
+            shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp)
+            timings["shirt_pipeline_s"] = time.perf_counter() - t1
+            metrics.update(shirt_metrics)
         metrics["run.frames"] = gt.n_frames
         metrics["run.cameras"] = C
         metrics["run.mean_subframes"] = float(gt.n_subframes.mean())
@@ -145,7 +155,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
             from simbench.report import write_run_report
 
-            write_run_report(tmp, scenario, gt, capture, metrics, timings)
+            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=shirt_report)
     except BaseException:
         if ctx is not None:
             ctx.__exit__(RuntimeError, None, None)
