@@ -16,8 +16,8 @@ t                      (C, 3)               world-to-camera translation (m)
 image_size             (2,) int             width, height (px)
 markers_3d             (F, M, 3)            marker centres, world frame (m)
 markers_2d             (F, C, M, 2)         cv2.projectPoints of markers_3d (px)
-marker_visible         (F, C, M) bool       in the image and at least half its area
-                                            unoccluded in the id render
+marker_visible         (F, C, M) bool       in the image and at least 75 % of its
+                                            area unoccluded in the id render
 marker_visible_frac    (F, C, M) float      visible area / expected area
 qpos                   (F, 40)              humanoid MuJoCo qpos (root xyz, quat wxyz,
                                             33 hinges, rad)

@@ -236,6 +236,8 @@ class Rasterizer:
                          "u_light_rgb", "u_ambient", "u_cam_pos", "u_ring_rgb", "u_specular")
         }
         self._fbos: dict[tuple[int, int], int] = {}
+        self._static: _Mesh | None = None
+        self._dynamic: _Mesh | None = None
 
     def _framebuffer(self, width: int, height: int) -> int:
         """Framebuffer with radiance / id / depth attachments of this size (cached)."""
@@ -257,9 +259,6 @@ class Rasterizer:
         gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
         self._fbos[key] = fbo
         return fbo
-
-        self._static: _Mesh | None = None
-        self._dynamic: _Mesh | None = None
 
     # ---------------------------------------------------------------- geometry
     def set_static(self, buf: GeometryBuffers) -> None:
