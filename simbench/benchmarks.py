@@ -48,6 +48,7 @@ def run_render_benchmark(n_frames: int = 60, scenario_path: str | None = None, e
     results: dict[str, float] = {}
 
     def measure(label: str, sc: Scenario, n_cams: int, ids: bool = False) -> float:
+        times = sc.frame_times()
         bench = Bench.from_scenario(sc)
         bench.cameras = bench.cameras[:n_cams]
         fr = bench.frame_renderer()

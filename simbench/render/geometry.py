@@ -147,7 +147,7 @@ class MovingGeometry:
 
 def moving_geometry(surface_parts, body_index: dict[str, int], n_markers: int,
                     prop_meshes: list[tuple[trimesh.Trimesh, np.ndarray, int]],
-                    marker_radius: float, marker_subdivisions: int = 2) -> MovingGeometry:
+                    marker_radius: float, marker_subdivisions: int = 1) -> MovingGeometry:
     """Build the moving geometry.
 
     surface_parts : objects with ``body``, ``mesh`` (body frame), ``face_patch`` (-1 or

@@ -238,12 +238,17 @@ class Rasterizer:
         self._fbos: dict[tuple[int, int], int] = {}
         self._static: _Mesh | None = None
         self._dynamic: _Mesh | None = None
+        self._static_cache: dict[tuple, tuple[int, list]] = {}
 
     def _framebuffer(self, width: int, height: int) -> int:
-        """Framebuffer with radiance / id / depth attachments of this size (cached)."""
+        """The working framebuffer of this size (made once)."""
         key = (width, height)
-        if key in self._fbos:
-            return self._fbos[key]
+        if key not in self._fbos:
+            self._fbos[key] = self._new_framebuffer(width, height)[0]
+        return self._fbos[key]
+
+    def _new_framebuffer(self, width: int, height: int) -> tuple[int, list]:
+        """Framebuffer with radiance / id / depth attachments: (fbo, renderbuffers)."""
         fbo = gl.glGenFramebuffers(1)
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, fbo)
         rbs = gl.glGenRenderbuffers(4)
@@ -257,13 +262,15 @@ class Rasterizer:
         if status != gl.GL_FRAMEBUFFER_COMPLETE:
             raise RuntimeError(f"incomplete framebuffer (status {status:#x})")
         gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
-        self._fbos[key] = fbo
-        return fbo
+        return fbo, list(rbs)
 
     # ---------------------------------------------------------------- geometry
     def set_static(self, buf: GeometryBuffers) -> None:
         self.context.make_current()
         self._static = _Mesh(buf, dynamic=False)
+        for fbo, _ in self._static_cache.values():
+            gl.glDeleteFramebuffers(1, [fbo])
+        self._static_cache.clear()
 
     def set_dynamic(self, buf: GeometryBuffers) -> None:
         """Topology and per-vertex attributes of the moving geometry (set once)."""
@@ -278,6 +285,48 @@ class Rasterizer:
         self._dynamic.update(positions, normals)
 
     # ---------------------------------------------------------------- render
+    def _draw(self, fbo: int, width: int, height: int, meshes, clear: bool, uniforms: tuple) -> None:
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, fbo)
+        gl.glViewport(0, 0, width, height)
+        gl.glEnable(gl.GL_DEPTH_TEST)
+        gl.glDepthFunc(gl.GL_LESS)
+        gl.glDisable(gl.GL_MULTISAMPLE)
+        gl.glDisable(gl.GL_CULL_FACE)
+        if clear:
+            gl.glClearBufferfv(gl.GL_COLOR, 0, np.zeros(4, np.float32))
+            gl.glClearBufferiv(gl.GL_COLOR, 1, np.zeros(4, np.int32))
+            gl.glClearBufferfv(gl.GL_COLOR, 2, np.zeros(4, np.float32))
+            gl.glClear(gl.GL_DEPTH_BUFFER_BIT)
+        W2C, P, kinds, vecs, rgbs, n, ambient, cam_pos, ring, specular = uniforms
+        gl.glUseProgram(self._prog)
+        loc = self._loc
+        gl.glUniformMatrix4fv(loc["u_world_to_cam"], 1, gl.GL_TRUE, W2C)
+        gl.glUniformMatrix4fv(loc["u_proj"], 1, gl.GL_TRUE, P)
+        gl.glUniform1i(loc["u_n_lights"], n)
+        gl.glUniform1iv(loc["u_light_kind"], MAX_LIGHTS, kinds)
+        gl.glUniform3fv(loc["u_light_vec"], MAX_LIGHTS, vecs)
+        gl.glUniform3fv(loc["u_light_rgb"], MAX_LIGHTS, rgbs)
+        gl.glUniform3fv(loc["u_ambient"], 1, ambient)
+        gl.glUniform3fv(loc["u_cam_pos"], 1, cam_pos)
+        gl.glUniform3fv(loc["u_ring_rgb"], 1, ring)
+        gl.glUniform1f(loc["u_specular"], specular)
+        for mesh in meshes:
+            if mesh is not None:
+                mesh.draw()
+
+    def _copy_framebuffer(self, src: int, dst: int, width: int, height: int) -> None:
+        """Copy all three colour attachments and depth (the cached static set)."""
+        gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, src)
+        gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, dst)
+        for i in range(3):
+            att = gl.GL_COLOR_ATTACHMENT0 + i
+            gl.glReadBuffer(att)
+            gl.glDrawBuffers(1, [att])
+            gl.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, gl.GL_COLOR_BUFFER_BIT, gl.GL_NEAREST)
+        gl.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, gl.GL_DEPTH_BUFFER_BIT, gl.GL_NEAREST)
+        gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
+        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, dst)
+
     def render(
         self,
         width: int,
@@ -292,37 +341,28 @@ class Rasterizer:
         znear: float = 0.05,
         zfar: float = 50.0,
         specular: float = 1.0,
+        cache_static: bool = True,
     ) -> dict[str, np.ndarray]:
         """Render one view.
 
         Returns a dict with the requested ``outputs``: ``radiance`` (H, W, 3) float32
-        linear (``radiance_red`` gives only its first channel, (H, W, 1), as ``radiance``), ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
+        linear (``radiance_red`` gives only its first channel, (H, W, 1), as
+        ``radiance``), ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
         (0 where nothing was drawn).
+
+        With ``cache_static`` the static set (floor, walls, clutter) is drawn once per
+        view and light state and copied in before the moving geometry is drawn: it
+        covers most pixels, and shading it is most of a frame's cost. This is exact
+        because the renderer casts no shadows (the body does not change how the set is lit).
         """
         if len(lights) > MAX_LIGHTS:
             raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
         self.context.make_current()
-        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, self._framebuffer(width, height))
-        gl.glViewport(0, 0, width, height)
-        gl.glEnable(gl.GL_DEPTH_TEST)
-        gl.glDepthFunc(gl.GL_LESS)
-        gl.glDisable(gl.GL_MULTISAMPLE)
-        gl.glDisable(gl.GL_CULL_FACE)
-        gl.glClearBufferfv(gl.GL_COLOR, 0, np.zeros(4, np.float32))
-        gl.glClearBufferiv(gl.GL_COLOR, 1, np.zeros(4, np.int32))
-        gl.glClearBufferfv(gl.GL_COLOR, 2, np.zeros(4, np.float32))
-        gl.glClear(gl.GL_DEPTH_BUFFER_BIT)
-
         W2C = np.eye(4)
         W2C[:3, :3] = R
         W2C[:3, 3] = t
         P = projection_from_K(np.asarray(K, float), width, height, znear, zfar)
         cam_pos = -np.asarray(R).T @ np.asarray(t)
-        gl.glUseProgram(self._prog)
-        loc = self._loc
-        gl.glUniformMatrix4fv(loc["u_world_to_cam"], 1, gl.GL_TRUE, W2C.astype(np.float32))
-        gl.glUniformMatrix4fv(loc["u_proj"], 1, gl.GL_TRUE, P.astype(np.float32))
-        n = len(lights)
         kinds = np.zeros(MAX_LIGHTS, np.int32)
         vecs = np.zeros((MAX_LIGHTS, 3), np.float32)
         rgbs = np.zeros((MAX_LIGHTS, 3), np.float32)
@@ -330,17 +370,24 @@ class Rasterizer:
             kinds[i] = 0 if light.kind == "directional" else 1
             vecs[i] = light.vector
             rgbs[i] = light.rgb
-        gl.glUniform1i(loc["u_n_lights"], n)
-        gl.glUniform1iv(loc["u_light_kind"], MAX_LIGHTS, kinds)
-        gl.glUniform3fv(loc["u_light_vec"], MAX_LIGHTS, vecs)
-        gl.glUniform3fv(loc["u_light_rgb"], MAX_LIGHTS, rgbs)
-        gl.glUniform3fv(loc["u_ambient"], 1, np.asarray(ambient_rgb, np.float32))
-        gl.glUniform3fv(loc["u_cam_pos"], 1, cam_pos.astype(np.float32))
-        gl.glUniform3fv(loc["u_ring_rgb"], 1, np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32))
-        gl.glUniform1f(loc["u_specular"], float(specular))
-        for mesh in (self._static, self._dynamic):
-            if mesh is not None:
-                mesh.draw()
+        uniforms = (W2C.astype(np.float32), P.astype(np.float32), kinds, vecs, rgbs, len(lights),
+                    np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
+                    np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
+        fbo = self._framebuffer(width, height)
+        if cache_static and self._static is not None:
+            key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
+            cached = self._static_cache.get(key)
+            if cached is None:
+                if len(self._static_cache) >= 16:  # bounded: drop the oldest view/light state
+                    old_key = next(iter(self._static_cache))
+                    gl.glDeleteFramebuffers(1, [self._static_cache.pop(old_key)[0]])
+                cached = self._new_framebuffer(width, height)
+                self._draw(cached[0], width, height, (self._static,), True, uniforms)
+                self._static_cache[key] = cached
+            self._copy_framebuffer(cached[0], fbo, width, height)
+            self._draw(fbo, width, height, (self._dynamic,), False, uniforms)
+        else:
+            self._draw(fbo, width, height, (self._static, self._dynamic), True, uniforms)
         out: dict[str, np.ndarray] = {}
         H, W = height, width
         if "radiance" in outputs:

@@ -64,26 +64,38 @@ class Sensor:
         self.fps = fps
 
     def electrons(self, radiance: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
-        """Mean radiance ``(H, W, 3)`` -> noisy electron counts ``(H, W, C)`` float32."""
+        """Mean radiance ``(H, W, 3)`` -> noisy electron counts ``(H, W, C)`` float32.
+
+        Shot noise uses the Gaussian approximation of the Poisson law (variance = mean),
+        exact to well under a grey level above ~20 e-; written in place because this
+        runs on every pixel of every frame.
+        """
         cfg = self.cfg
         if cfg.mode == "ir" and radiance.shape[2] != 1:
             radiance = radiance[..., :1]  # the IR sensor: one channel (the renderer's red ~ near infrared)
-        e = radiance * self.scale
+        e = np.multiply(radiance, self.scale, dtype=np.float32)
         if rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0):
-            var = (e if cfg.shot_noise else np.float32(0)) + np.float32(cfg.read_noise_e**2)
+            std = (e + np.float32(cfg.read_noise_e**2)) if cfg.shot_noise else np.full_like(e, cfg.read_noise_e**2)
+            np.maximum(std, 0, out=std)
+            np.sqrt(std, out=std)
             noise = rng.standard_normal(e.shape, dtype=np.float32)
-            e = e + noise * np.sqrt(np.maximum(var, 0, dtype=np.float32))
+            noise *= std
+            e += noise
         np.clip(e, 0, cfg.full_well_e, out=e)
         return e
 
     def to_frame(self, electrons: np.ndarray, wb: WhiteBalance | None) -> np.ndarray:
         """Electrons ``(H, W, C)`` -> uint8 ``(H, W, 3)`` (RGB order)."""
         cfg = self.cfg
-        lin = electrons * np.float32(cfg.gain / cfg.full_well_e)
-        if lin.shape[2] == 3 and wb is not None:
-            lin = lin * wb.update(lin)
-        idx = np.clip(lin * np.float32(2**_LUT_BITS - 1) + np.float32(0.5), 0, 2**_LUT_BITS - 1).astype(np.uint16)
-        frame = self.lut[idx]
+        top = 2**_LUT_BITS - 1
+        k = np.float32(cfg.gain / cfg.full_well_e * top)
+        if electrons.shape[2] == 3 and wb is not None:
+            # Auto white balance looks at the linear image before its gains.
+            k = (wb.update(electrons) * k).astype(np.float32)
+        x = electrons * k
+        x += np.float32(0.5)
+        np.clip(x, 0, top, out=x)
+        frame = np.take(self.lut, x.astype(np.uint16))
         if frame.shape[2] == 1:
             frame = np.repeat(frame, 3, axis=2)
         if cfg.jpeg_quality > 0:
