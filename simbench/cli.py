@@ -145,6 +145,21 @@ def bench_render(frames: int = typer.Option(60, help="frames per measurement")) 
     run_render_benchmark(n_frames=frames)
 
 
+from simbench.cli_sweep import register as _register_sweep_commands  # noqa: E402
+
+_register_sweep_commands(app)
+
+
+@bench_app.command("trackers")
+def bench_trackers(frames: int = typer.Option(200, help="frames per measurement"),
+                   seed: int = typer.Option(0, help="seed of the synthetic trajectories")) -> None:
+    """Per-frame tracking cost of every tracker for 1..30 markers (seed 000 Tables V-VII),
+    with a plain per-marker filterpy KalmanFilter loop as the reference."""
+    from mocap.bench_trackers import format_benchmark_table, run_tracker_benchmark
+
+    print(format_benchmark_table(run_tracker_benchmark(n_frames=frames, seed=seed)))
+
+
 def main() -> None:
     app()
 
