@@ -1,0 +1,376 @@
+"""``simbench check``: a CI regression gate over a named suite of scenarios.
+
+Suites live in ``scenarios/suites.toml``::
+
+    [tolerances]                      # first matching pattern wins (fnmatch)
+    "markers.rmse_mm" = { worse = "higher", abs = 0.25, rel = 0.10 }
+    "markers.reconstructed_fraction" = { worse = "lower", abs = 0.02 }
+    "*" = { worse = "either", rel = 0.05, abs = 1e-9 }
+
+    [suites.ci]
+    description = "three tiny scenarios"
+    set = { "rig.count" = 2, duration_s = 0.5 }   # applied to every scenario
+
+    [[suites.ci.scenarios]]
+    name = "quickstart"                           # key in the baseline
+    file = "quickstart.toml"                      # relative to suites.toml
+    set = { "markers_pipeline.tracker" = "kalman" }
+
+A suite may have its own ``[suites.NAME.tolerances]``, consulted before the global
+ones. A metric's allowed change is ``max(abs, rel * |baseline|)``; ``worse`` says
+which direction counts as a regression (``higher``, ``lower``, or ``either``: any
+change beyond the tolerance). Changes beyond the tolerance in the good direction are
+reported as improved (a hint to update the baseline) and do not fail.
+
+The baseline (``scenarios/baselines/<suite>.json``) holds, per scenario, its content
+hash and metrics; ``simbench baseline update --suite NAME`` rewrites it from a run.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import json
+import math
+import tomllib
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from rich.console import Console
+from rich.table import Table
+
+from simbench.errors import ScenarioError, SimbenchInputError
+from simbench.results_db import STATUS_OK, RunRecord, atomic_write_bytes
+from simbench.scenario import load_scenario, validation_error_to_scenario_error
+from simbench.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
+
+WORSE = ("higher", "lower", "either")
+
+# Status of one metric comparison; the first four fail the check.
+REGRESSED, MISSING, ERROR, OK, IMPROVED, NEW = "regressed", "missing", "error", "ok", "improved", "new"
+FAILING = (REGRESSED, MISSING, ERROR)
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Tolerance(_Model):
+    worse: Literal["higher", "lower", "either"] = Field(description="direction that counts as a regression")
+    abs: float = Field(0.0, ge=0.0, description="allowed absolute change")
+    rel: float = Field(0.0, ge=0.0, description="allowed change as a fraction of |baseline|")
+
+    def allowed(self, baseline: float) -> float:
+        return max(self.abs, self.rel * abs(baseline))
+
+    def describe(self) -> str:
+        parts = [f"±{self.abs:g}" if self.abs else "", f"±{100 * self.rel:g}%" if self.rel else ""]
+        tol = " or ".join(p for p in parts if p) or "exact"
+        return f"{tol}, {self.worse} is worse" if self.worse != "either" else f"{tol}, any change"
+
+
+def _flat(v):
+    return flatten_dotted(v) if isinstance(v, dict) else v
+
+
+class SuiteScenario(_Model):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    file: str
+    set: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("set", mode="before")
+    @classmethod
+    def _flatten(cls, v):
+        return _flat(v)
+
+
+class Suite(_Model):
+    description: str = ""
+    set: dict[str, Any] = Field(default_factory=dict)
+    scenarios: list[SuiteScenario] = Field(min_length=1)
+    tolerances: dict[str, Tolerance] = Field(default_factory=dict)
+
+    @field_validator("set", mode="before")
+    @classmethod
+    def _flatten(cls, v):
+        return _flat(v)
+
+    @model_validator(mode="after")
+    def _unique(self):
+        names = [s.name for s in self.scenarios]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"scenario names in a suite must be unique; repeated: {dup}")
+        return self
+
+
+class SuitesSpec(_Model):
+    tolerances: dict[str, Tolerance] = Field(default_factory=dict)
+    suites: dict[str, Suite] = Field(min_length=1)
+
+
+@dataclass(frozen=True)
+class Suites:
+    spec: SuitesSpec
+    path: Path
+
+    def get(self, name: str) -> Suite:
+        if name not in self.spec.suites:
+            raise ScenarioError(self.path, "suites", name, f"no such suite; defined: {', '.join(self.spec.suites)}")
+        return self.spec.suites[name]
+
+    def tolerances_for(self, name: str) -> list[tuple[str, Tolerance]]:
+        """Patterns in the order they are tried: the suite's own, then the global ones."""
+        return list(self.get(name).tolerances.items()) + list(self.spec.tolerances.items())
+
+    def runs(self, name: str, only: list[str] | tuple[str, ...] = (), extra_set: dict[str, Any] | None = None) -> list[RunSpec]:
+        """The suite's scenarios resolved (suite ``set``, scenario ``set``, then ``extra_set``)."""
+        suite = self.get(name)
+        known = [s.name for s in suite.scenarios]
+        for o in only:
+            if o not in known:
+                raise ScenarioError(self.path, f"suites.{name}.scenarios", o, f"--only names a scenario of the suite: {', '.join(known)}")
+        runs = []
+        for i, s in enumerate(suite.scenarios):
+            if only and s.name not in only:
+                continue
+            path = (self.path.parent / s.file).resolve()
+            overrides = {**suite.set, **s.set, **flatten_dotted(extra_set or {})}
+            if not path.is_file():
+                raise ScenarioError(self.path, f"suites.{name}.scenarios[{i}].file", s.file, f"file not found (looked for {path})")
+            sc = load_scenario(path, overrides=overrides)
+            runs.append(RunSpec(run_id_for(sc, overrides), len(runs), f"check:{name}", {"scenario": s.name}, overrides, sc))
+        return runs
+
+
+def load_suites(path: str | Path) -> Suites:
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "<file>", str(path), "file not found; suites live in scenarios/suites.toml (--suites FILE)")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    try:
+        return Suites(SuitesSpec.model_validate(data), path)
+    except ValidationError as exc:
+        raise validation_error_to_scenario_error(path, exc) from None
+
+
+def default_baseline_path(suites_file: str | Path, suite: str) -> Path:
+    return Path(suites_file).parent / "baselines" / f"{suite}.json"
+
+
+# ---------------------------------------------------------------------------- running
+def run_suite(runs: list[RunSpec], out_dir: str | Path | None = None, workers: int | None = None,
+              scheduler: str | None = None,
+              on_record: Callable[[RunRecord, int, int], None] | None = None) -> dict[str, RunRecord]:
+    """Run the suite's scenarios (process pool or Dask); ``{suite scenario name: record}``."""
+    tasks = [RunTask(r, str(Path(out_dir, r.factors["scenario"]).resolve()) if out_dir else None) for r in runs]
+    out: dict[str, RunRecord] = {}
+    failed = 0
+    for rec in iter_records(tasks, workers, scheduler):
+        rec.per_frame = None
+        out[str(rec.factors["scenario"])] = rec
+        failed += rec.status != STATUS_OK
+        if on_record:
+            on_record(rec, len(out), failed)
+    return {r.factors["scenario"]: out[r.factors["scenario"]] for r in runs}
+
+
+# ---------------------------------------------------------------------------- baselines
+@dataclass(frozen=True)
+class Baseline:
+    suite: str
+    scenarios: dict[str, dict]  # name -> {"scenario_hash": str, "metrics": {metric: float}}
+    path: Path
+
+
+def load_baseline(path: str | Path) -> Baseline:
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "<file>", str(path), "baseline not found; write it with `simbench baseline update --suite NAME`")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the JSON, or rewrite it with `simbench baseline update`") from None
+    scen = data.get("scenarios")
+    if not isinstance(scen, dict) or not all(isinstance(v, dict) and isinstance(v.get("metrics"), dict) for v in scen.values()):
+        raise ScenarioError(path, "scenarios", type(scen).__name__,
+                            "expected {name: {\"scenario_hash\": ..., \"metrics\": {...}}}; rewrite with `simbench baseline update`")
+    for v in scen.values():
+        v["metrics"] = {k: (math.nan if x is None else float(x)) for k, x in v["metrics"].items()}
+    return Baseline(str(data.get("suite", "")), scen, path)
+
+
+def write_baseline(path: str | Path, suite: str, records: dict[str, RunRecord]) -> Path:
+    """Write the baseline of a suite run; refuses if any scenario failed."""
+    bad = {n: r.error.splitlines()[0] if r.error else "" for n, r in records.items() if r.status != STATUS_OK}
+    if bad:
+        raise SimbenchInputError(f"baseline not written: scenario(s) failed: "
+                                 + "; ".join(f"{n}: {e}" for n, e in bad.items()) + ". Fix them and run again.")
+    data = {
+        "suite": suite,
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "versions": package_versions(),
+        "scenarios": {
+            n: {"scenario_hash": r.scenario_hash, "parameters": r.parameters,
+                "metrics": {k: (v if math.isfinite(v) else None) for k, v in sorted(r.metrics.items())}}
+            for n, r in records.items()
+        },
+    }
+    path = Path(path)
+    atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+    return path
+
+
+# ---------------------------------------------------------------------------- comparing
+@dataclass(frozen=True)
+class MetricCheck:
+    scenario: str
+    metric: str
+    baseline: float
+    current: float
+    status: str
+    tolerance: Tolerance | None = None
+    note: str = ""
+
+    @property
+    def delta(self) -> float:
+        return self.current - self.baseline
+
+    @property
+    def failing(self) -> bool:
+        return self.status in FAILING
+
+
+def tolerance_for(metric: str, patterns: list[tuple[str, Tolerance]]) -> Tolerance | None:
+    for pat, tol in patterns:
+        if fnmatch.fnmatchcase(metric, pat):
+            return tol
+    return None
+
+
+def judge(baseline: float, current: float, tol: Tolerance) -> str:
+    """``ok``, ``regressed`` or ``improved`` of one metric under its tolerance."""
+    b_ok, c_ok = math.isfinite(baseline), math.isfinite(current)
+    if not b_ok and not c_ok:
+        return OK
+    if b_ok and not c_ok:
+        return REGRESSED  # the metric could not be computed any more
+    if not b_ok:
+        return IMPROVED if tol.worse != "either" else REGRESSED
+    d = current - baseline
+    allowed = tol.allowed(baseline)
+    if abs(d) <= allowed:
+        return OK
+    if tol.worse == "either":
+        return REGRESSED
+    worse = d > 0 if tol.worse == "higher" else d < 0
+    return REGRESSED if worse else IMPROVED
+
+
+def compare(records: dict[str, RunRecord], baseline: Baseline, patterns: list[tuple[str, Tolerance]]) -> list[MetricCheck]:
+    """Every metric of every scenario run against the baseline.
+
+    Scenarios of the baseline that were not run (``--only``) are not compared; a
+    scenario that failed is one ``error`` check; a metric in the baseline missing from
+    the run is ``missing``; one not in the baseline is ``new``.
+    """
+    checks: list[MetricCheck] = []
+    nan = math.nan
+    for name, rec in records.items():
+        base = baseline.scenarios.get(name)
+        if rec.status != STATUS_OK:
+            checks.append(MetricCheck(name, "(run)", nan, nan, ERROR, note=rec.error.splitlines()[0] if rec.error else "failed"))
+            continue
+        if base is None:
+            for m, v in sorted(rec.metrics.items()):
+                checks.append(MetricCheck(name, m, nan, v, NEW, note="scenario not in the baseline"))
+            continue
+        note = "" if base.get("scenario_hash") in (None, rec.scenario_hash) else "scenario differs from the baseline's"
+        bm = base["metrics"]
+        for m in sorted(set(bm) | set(rec.metrics)):
+            tol = tolerance_for(m, patterns)
+            if m not in rec.metrics:
+                checks.append(MetricCheck(name, m, bm[m], nan, MISSING, tol, note))
+            elif m not in bm:
+                checks.append(MetricCheck(name, m, nan, rec.metrics[m], NEW, tol, note))
+            elif tol is None:
+                checks.append(MetricCheck(name, m, bm[m], rec.metrics[m], ERROR, None, "no tolerance matches; add one to suites.toml"))
+            else:
+                checks.append(MetricCheck(name, m, bm[m], rec.metrics[m], judge(bm[m], rec.metrics[m], tol), tol, note))
+    return checks
+
+
+def failed(checks: list[MetricCheck]) -> bool:
+    return any(c.failing for c in checks)
+
+
+def _fmt(v: float) -> str:
+    return "—" if not math.isfinite(v) else f"{v:.4g}"
+
+
+def _change(c: MetricCheck) -> str:
+    if not (math.isfinite(c.baseline) and math.isfinite(c.current)):
+        return ""
+    rel = f" ({100 * c.delta / abs(c.baseline):+.0f}%)" if c.baseline else ""
+    return f"{c.delta:+.4g}{rel}"
+
+
+_STYLE = {REGRESSED: "bold red", MISSING: "bold red", ERROR: "bold red", IMPROVED: "green", NEW: "cyan", OK: "dim"}
+
+
+def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseline: Path, verbose: bool = False,
+                 wall_s: float | None = None) -> None:
+    """A rich table of the regressions (and other changes; every metric with ``verbose``)."""
+    shown = [c for c in checks if verbose or c.status != OK]
+    scen = sorted({c.scenario for c in checks})
+    counts = {s: sum(c.status == s for c in checks) for s in (REGRESSED, MISSING, ERROR, IMPROVED, NEW, OK)}
+    if shown:
+        title = f"simbench check --suite {suite}: changes against {baseline}"
+        t = Table(title=title, title_justify="left", show_lines=False)
+        for col, kw in (("scenario", {}), ("metric", {}), ("baseline", {"justify": "right"}), ("current", {"justify": "right"}),
+                        ("change", {"justify": "right"}), ("tolerance", {}), ("status", {}), ("note", {"overflow": "fold"})):
+            t.add_column(col, **kw)
+        order = {REGRESSED: 0, MISSING: 1, ERROR: 2, IMPROVED: 3, NEW: 4, OK: 5}
+        for c in sorted(shown, key=lambda c: (order[c.status], c.scenario, c.metric)):
+            st = _STYLE[c.status]
+            t.add_row(c.scenario, c.metric, _fmt(c.baseline), _fmt(c.current), _change(c),
+                      c.tolerance.describe() if c.tolerance else "", f"[{st}]{c.status.upper()}[/]", c.note)
+        console.print(t)
+    n_fail = counts[REGRESSED] + counts[MISSING] + counts[ERROR]
+    verdict = "[bold red]FAIL[/]" if n_fail else "[bold green]PASS[/]"
+    took = f" in {wall_s:.0f} s" if wall_s is not None else ""
+    console.print(f"{verdict} suite {suite}: {len(checks)} metrics of {len(scen)} scenarios{took}: "
+                  f"{counts[REGRESSED]} regressed, {counts[MISSING]} missing, {counts[ERROR]} errors, "
+                  f"{counts[IMPROVED]} improved, {counts[NEW]} new, {counts[OK]} within tolerance", highlight=False)
+
+
+def write_junit(checks: list[MetricCheck], path: str | Path, suite: str, wall_s: float = 0.0) -> Path:
+    """JUnit XML: one test case per scenario and metric; regressions are failures, crashed runs errors."""
+    n_fail = sum(c.status in (REGRESSED, MISSING) for c in checks)
+    n_err = sum(c.status == ERROR for c in checks)
+    root = ET.Element("testsuites", name="simbench check", tests=str(len(checks)), failures=str(n_fail), errors=str(n_err),
+                      time=f"{wall_s:.3f}")
+    ts = ET.SubElement(root, "testsuite", name=f"simbench.check.{suite}", tests=str(len(checks)), failures=str(n_fail),
+                       errors=str(n_err), skipped="0", time=f"{wall_s:.3f}",
+                       timestamp=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    for c in checks:
+        tc = ET.SubElement(ts, "testcase", classname=f"{suite}.{c.scenario}", name=c.metric, time="0")
+        detail = (f"baseline {_fmt(c.baseline)}, current {_fmt(c.current)}, change {_change(c) or 'n/a'}; "
+                  f"tolerance: {c.tolerance.describe() if c.tolerance else 'none'}" + (f"; {c.note}" if c.note else ""))
+        if c.status in (REGRESSED, MISSING):
+            ET.SubElement(tc, "failure", message=f"{c.metric} {c.status}: {detail}", type=c.status).text = detail
+        elif c.status == ERROR:
+            ET.SubElement(tc, "error", message=c.note or "error", type="error").text = c.note
+        elif c.status != OK:
+            ET.SubElement(tc, "system-out").text = f"{c.status}: {detail}"
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ET.indent(root)
+    atomic_write_bytes(path, ET.tostring(root, encoding="utf-8", xml_declaration=True))
+    return path

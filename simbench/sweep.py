@@ -1,0 +1,514 @@
+"""Scenario sweeps: a grid or a seeded random sample over any scenario fields.
+
+A sweep file (``scenarios/sweeps/*.toml``) names a base scenario, overrides applied
+to every run (``[set]``), and factors, each over one dotted scenario field or a named
+set of levels that change several fields at once::
+
+    name = "lighting_blur_tracker"
+    scenario = "../visible_office.toml"      # relative to the sweep file
+    mode = "grid"                            # or "random" with `samples` and `seed`
+
+    [set]
+    "rig.count" = 2
+    duration_s = 0.5
+
+    [[factors]]
+    field = "lighting.preset"
+    values = ["office_fluorescent", "tungsten_lamp", "dim_gym"]
+
+    [[factors]]
+    name = "blur"
+    [factors.levels]
+    off = { "sensor.motion_blur" = false, "sensor.exposure_ms" = 4.0 }
+    long = { "sensor.exposure_ms" = 25.0 }
+
+    [[factors]]                              # random mode only
+    field = "sensor.read_noise_e"
+    range = [1.0, 20.0]
+    log = true
+
+Every run is validated before anything renders: a bad field names the sweep file, the
+factor, the value and what the scenario schema allows. Each run has a stable id: a hash
+of the resolved scenario's content hash and its overrides, so ``--resume`` knows what is
+done.
+
+Runs execute in worker processes (``spawn``: each makes its own off-screen GL
+context) on a local process pool, or on a Dask distributed cluster
+(``scheduler="tcp://HOST:PORT"``; workers should run one thread each, e.g.
+``dask worker tcp://HOST:PORT --nthreads 1``, and see the same file system for run
+outputs). A run that raises is recorded as failed with its error and the sweep goes
+on. Results are stored by :mod:`simbench.results_db`.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import itertools
+import json
+import math
+import multiprocessing
+import os
+import socket
+import threading
+import time
+import tomllib
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from simbench.errors import ScenarioError, SimbenchInputError
+from simbench.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunRecord
+from simbench.scenario import Scenario, load_scenario, validation_error_to_scenario_error
+
+VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
+                    "pin", "pyrender2", "PyOpenGL", "duckdb", "dask", "distributed")
+
+
+# ---------------------------------------------------------------------------- sweep file
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def flatten_dotted(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"sensor": {"exposure_ms": 4}}`` -> ``{"sensor.exposure_ms": 4}`` (TOML's unquoted dotted keys)."""
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(flatten_dotted(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+class Factor(_Model):
+    """One swept factor: ``values`` of a field, named ``levels`` (several fields each), or a ``range``."""
+
+    field: str | None = Field(None, description="dotted scenario field, e.g. sensor.exposure_ms")
+    name: str | None = Field(None, description="factor name in reports (default: the field)")
+    values: list[Any] | None = Field(None, min_length=1)
+    labels: list[str] | None = Field(None, description="display names of `values` (e.g. for props lists)")
+    levels: dict[str, dict[str, Any]] | None = Field(None, min_length=1, description="level name -> {dotted field: value}")
+    range: tuple[float, float] | None = Field(None, description="[low, high] sampled uniformly (random mode)")
+    log: bool = Field(False, description="sample `range` log-uniformly")
+    integer: bool = Field(False, description="sample `range` as integers (inclusive)")
+
+    @model_validator(mode="after")
+    def _one_kind(self):
+        kinds = [k for k in ("values", "levels", "range") if getattr(self, k) is not None]
+        if len(kinds) != 1:
+            raise ValueError(f"give exactly one of `values`, `levels` or `range` (got {kinds or 'none'})")
+        if self.levels is None and not self.field:
+            raise ValueError("`values` and `range` need `field = \"dotted.scenario.field\"`")
+        if self.levels is not None and self.field:
+            raise ValueError("`levels` set their own fields; give `name` instead of `field`")
+        if self.levels is not None and not self.name:
+            raise ValueError("a factor with `levels` needs a `name`")
+        if self.labels is not None and (self.values is None or len(self.labels) != len(self.values)):
+            raise ValueError("`labels` must have one entry per value")
+        if self.range is not None:
+            lo, hi = self.range
+            if not hi > lo:
+                raise ValueError(f"range must be [low, high] with high > low, got {list(self.range)}")
+            if self.log and lo <= 0:
+                raise ValueError("a log range needs low > 0")
+        if self.levels is not None:
+            object.__setattr__(self, "levels", {k: flatten_dotted(v) for k, v in self.levels.items()})
+        return self
+
+    @property
+    def key(self) -> str:
+        return self.name or self.field or ""
+
+    def grid_levels(self) -> list[tuple[object, dict[str, Any]]]:
+        """``[(level shown in reports, overrides), ...]``; not for ``range`` factors."""
+        if self.levels is not None:
+            return [(name, dict(ov)) for name, ov in self.levels.items()]
+        labels = self.labels or [display_value(v) for v in self.values]
+        return [(lab, {self.field: v}) for lab, v in zip(labels, self.values)]
+
+    def sample(self, rng: np.random.Generator) -> tuple[object, dict[str, Any]]:
+        if self.range is None:
+            levels = self.grid_levels()
+            return levels[int(rng.integers(len(levels)))]
+        lo, hi = self.range
+        if self.integer:
+            v: object = int(rng.integers(int(math.ceil(lo)), int(math.floor(hi)) + 1))
+        elif self.log:
+            v = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+        else:
+            v = float(rng.uniform(lo, hi))
+        return v, {self.field: v}
+
+
+def display_value(v: object) -> object:
+    """Scalars stay as they are (numeric axes in reports); anything else becomes compact JSON."""
+    if isinstance(v, (bool, int, float, str)):
+        return v
+    return json.dumps(v, separators=(",", ":"), sort_keys=True, default=str)
+
+
+class SweepSpec(_Model):
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    scenario: str = Field(description="base scenario TOML, relative to the sweep file")
+    mode: Literal["grid", "random"] = "grid"
+    samples: int | None = Field(None, ge=1, le=100000, description="number of runs in random mode")
+    seed: int = Field(0, ge=0, description="seed of the random sample (not the scenarios' seed)")
+    set: dict[str, Any] = Field(default_factory=dict, description="overrides applied to every run")
+    factors: list[Factor] = Field(min_length=1)
+
+    @field_validator("set", mode="before")
+    @classmethod
+    def _flatten(cls, v):
+        return flatten_dotted(v) if isinstance(v, dict) else v
+
+    @model_validator(mode="after")
+    def _checks(self):
+        keys = [f.key for f in self.factors]
+        dup = {k for k in keys if keys.count(k) > 1}
+        if dup:
+            raise ValueError(f"factor names must be unique; repeated: {sorted(dup)}")
+        if self.mode == "grid":
+            if any(f.range is not None for f in self.factors):
+                raise ValueError("`range` factors need mode = \"random\"; in a grid give `values`")
+            if self.samples is not None:
+                raise ValueError("`samples` is for mode = \"random\"; a grid runs every combination")
+        elif self.samples is None:
+            raise ValueError("mode = \"random\" needs `samples = N`")
+        return self
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep (or suite): its id, the factor levels, the resolved scenario."""
+
+    run_id: str
+    index: int
+    sweep: str
+    factors: dict[str, object]
+    overrides: dict[str, Any]
+    scenario: Scenario
+
+
+@dataclass(frozen=True)
+class Sweep:
+    spec: SweepSpec
+    path: Path
+    runs: tuple[RunSpec, ...]
+    duplicates: int = 0
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def factor_levels(self) -> dict[str, list]:
+        """Levels of each factor in file order (sampled values for ``range`` factors)."""
+        out: dict[str, list] = {}
+        for f in self.spec.factors:
+            if f.range is None:
+                out[f.key] = [lab for lab, _ in f.grid_levels()]
+            else:
+                out[f.key] = sorted({r.factors[f.key] for r in self.runs})
+        return out
+
+
+def run_id_for(scenario: Scenario, overrides: dict[str, Any]) -> str:
+    """Stable id of a run: hash of the resolved scenario's content hash and its overrides."""
+    blob = json.dumps({"scenario": scenario.content_hash(), "overrides": overrides}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def load_sweep(path: str | Path, extra_set: dict[str, Any] | None = None) -> Sweep:
+    """Read, validate and expand a sweep file (``extra_set`` as if added to ``[set]``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(path, "<file>", str(path), "file not found; sweep files live in scenarios/sweeps/*.toml")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    data.setdefault("name", path.stem)
+    try:
+        spec = SweepSpec.model_validate(data)
+    except ValidationError as exc:
+        raise validation_error_to_scenario_error(path, exc) from None
+    if extra_set:
+        spec = spec.model_copy(update={"set": {**spec.set, **flatten_dotted(extra_set)}})
+    return Sweep(spec, path, *expand(spec, path))
+
+
+def _with(base: Scenario, overrides: dict[str, Any], path: Path, where: str) -> Scenario:
+    try:
+        return base.with_overrides(overrides)
+    except ValidationError as exc:
+        err = validation_error_to_scenario_error(path, exc)
+        raise ScenarioError(path, f"{where} -> scenario field '{err.field}'", err.value, err.allowed) from None
+
+
+def expand(spec: SweepSpec, path: Path) -> tuple[tuple[RunSpec, ...], int]:
+    """All runs of a sweep, validated; returns ``(runs, number of duplicate runs dropped)``."""
+    scenario_path = (path.parent / spec.scenario).resolve()
+    if not scenario_path.is_file():
+        raise ScenarioError(path, "scenario", spec.scenario, f"file not found (looked for {scenario_path})")
+    base = load_scenario(scenario_path)
+    base = _with(base, spec.set, path, "set")
+    # Each level on its own first, so an error names the factor and level that causes it.
+    for i, f in enumerate(spec.factors):
+        probes = f.grid_levels() if f.range is None else [(v, {f.field: v}) for v in f.range]
+        for label, ov in probes:
+            _with(base, ov, path, f"factors[{i}] ({f.key} = {label!r})")
+    if spec.mode == "grid":
+        combos = itertools.product(*[f.grid_levels() for f in spec.factors])
+    else:
+        rng = np.random.default_rng(spec.seed)
+        combos = [[f.sample(rng) for f in spec.factors] for _ in range(spec.samples)]
+    runs: list[RunSpec] = []
+    seen: set[str] = set()
+    duplicates = 0
+    for combo in combos:
+        factors = {f.key: lab for f, (lab, _) in zip(spec.factors, combo)}
+        factor_ov: dict[str, Any] = {}
+        for _, ov in combo:
+            factor_ov.update(ov)
+        sc = _with(base, factor_ov, path, "run " + ", ".join(f"{k}={v!r}" for k, v in factors.items()))
+        overrides = {**spec.set, **factor_ov}
+        rid = run_id_for(sc, overrides)
+        if rid in seen:
+            duplicates += 1
+            continue
+        seen.add(rid)
+        runs.append(RunSpec(rid, len(runs), spec.name, factors, overrides, sc))
+    return tuple(runs), duplicates
+
+
+# ---------------------------------------------------------------------------- one run (worker side)
+@dataclass(frozen=True)
+class RunTask:
+    """What a worker needs: the run and where its outputs go (None: no outputs written)."""
+
+    spec: RunSpec
+    out_dir: str | None = None
+
+
+# One GL-rendering run at a time per process: Dask workers may run tasks on several
+# threads, and the off-screen GL context must not be shared between concurrent runs.
+_RUN_LOCK = threading.Lock()
+
+
+def package_versions() -> dict[str, str]:
+    from importlib import metadata
+    import platform
+
+    out = {"python": platform.python_version()}
+    for name in VERSION_PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def per_frame_table(result):
+    """Long per-frame marker table of a run (``None`` without markers)."""
+    import pyarrow as pa
+
+    from eval.marker_metrics import per_marker_error_mm
+
+    cap = result.capture
+    if cap is None:
+        return None
+    gt = result.sequence.ground_truth
+    traj = cap.trajectories
+    idx = [traj.labels.index(n) for n in gt.marker_names]
+    err = per_marker_error_mm(traj.xyz[:, idx], gt.markers_3d)  # (F, M)
+    F, M = err.shape
+    filled = traj.filled[:, idx] if traj.filled is not None else np.zeros((F, M), bool)
+    return pa.table({
+        "frame": np.repeat(np.arange(F, dtype=np.int32), M),
+        "time_s": np.repeat(np.asarray(gt.times, float), M),
+        "marker": np.tile(np.asarray(gt.marker_names, dtype=object), F),
+        "error_mm": err.reshape(-1),
+        "views_visible": np.asarray(gt.marker_visible).sum(axis=1).astype(np.int16).reshape(-1),
+        "reconstructed": np.isfinite(err).reshape(-1),
+        "filled": np.asarray(filled, bool).reshape(-1),
+    })
+
+
+def _record(spec: RunSpec, status: str, **kw) -> RunRecord:
+    return RunRecord(run_id=spec.run_id, sweep=spec.sweep, run_index=spec.index, scenario=spec.scenario.name,
+                     scenario_hash=spec.scenario.content_hash(), factors=dict(spec.factors),
+                     parameters={k: v for k, v in spec.overrides.items()}, status=status, **kw)
+
+
+def execute_run(task: RunTask) -> RunRecord:
+    """Run one scenario in this (worker) process; never raises for a failing run."""
+    started = time.time()
+    worker = f"{socket.gethostname()}:{os.getpid()}"
+    versions = package_versions()
+    try:
+        from simbench.run import run_scenario
+
+        with _RUN_LOCK:
+            result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
+        metrics = {k: float(v) for k, v in result.metrics.items()}
+        return _record(task.spec, STATUS_OK, started_at=started, ended_at=time.time(), timings=dict(result.timings_s),
+                       versions=versions, worker=worker, out_dir=task.out_dir or "", metrics=metrics,
+                       per_frame=per_frame_table(result))
+    except Exception as exc:  # a failing run is recorded, the sweep goes on
+        tb = traceback.format_exc(limit=-6)
+        return _record(task.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}\n{tb}", started_at=started,
+                       ended_at=time.time(), versions=versions, worker=worker)
+
+
+# ---------------------------------------------------------------------------- executors
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
+    """Run tasks on a spawn process pool, ``workers`` at a time; yield records as they finish.
+
+    If a worker process dies (e.g. a crash in the GL driver), the runs it had in flight
+    are recorded as failed and the pool is restarted for the rest.
+    """
+    pending = list(reversed(tasks))
+    ctx = multiprocessing.get_context("spawn")
+    while pending:
+        pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        inflight: dict[cf.Future, RunTask] = {}
+        broken = False
+        finished = False
+        try:
+            while pending or inflight:
+                while pending and len(inflight) < workers and not broken:
+                    t = pending.pop()
+                    inflight[pool.submit(execute_run, t)] = t
+                done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+                for fut in done:
+                    t = inflight.pop(fut)
+                    try:
+                        yield fut.result()
+                    except cf.process.BrokenProcessPool as exc:
+                        broken = True
+                        yield _record(t.spec, STATUS_FAILED, error=f"worker process died: {exc}",
+                                      started_at=time.time(), ended_at=time.time())
+                if broken and not inflight:
+                    break
+            finished = True
+        finally:
+            # Interrupted (Ctrl-C, consumer stopped): do not wait for runs in flight.
+            pool.shutdown(wait=finished, cancel_futures=True)
+
+
+def iter_dask(tasks: list[RunTask], scheduler: str) -> Iterator[RunRecord]:
+    """Run tasks on a Dask distributed cluster; yield records as they finish."""
+    from distributed import Client, as_completed
+
+    try:
+        client = Client(scheduler, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        raise SimbenchInputError(f"--scheduler {scheduler}: cannot connect ({exc}); start one with "
+                                 f"`dask scheduler` and `dask worker {scheduler} --nthreads 1`") from None
+    try:
+        futures = {client.submit(execute_run, t, pure=False, key=f"simbench-run-{t.spec.run_id}-{time.time_ns()}"): t
+                   for t in tasks}
+        for fut in as_completed(list(futures)):
+            t = futures[fut]
+            try:
+                yield fut.result()
+            except Exception as exc:  # e.g. KilledWorker: the worker died running it
+                yield _record(t.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}",
+                              started_at=time.time(), ended_at=time.time())
+    finally:
+        client.close()
+
+
+def iter_records(tasks: list[RunTask], workers: int | None = None, scheduler: str | None = None) -> Iterator[RunRecord]:
+    if not tasks:
+        return iter(())
+    if scheduler:
+        return iter_dask(tasks, scheduler)
+    return iter_local(tasks, min(workers or default_workers(), len(tasks)))
+
+
+# ---------------------------------------------------------------------------- a whole sweep
+@dataclass
+class SweepProgress:
+    """Counts passed to the progress callback after each finished run."""
+
+    total: int
+    done: int = 0
+    failed: int = 0
+    skipped: int = 0
+    last: RunRecord | None = None
+
+
+@dataclass
+class SweepSummary:
+    db: Path
+    total: int
+    ran: int
+    failed: int
+    skipped: int
+    wall_s: float
+    records: list[RunRecord] = field(default_factory=list)
+
+
+def default_db_path(sweep: Sweep) -> Path:
+    return Path("out") / "sweeps" / sweep.name / "results.duckdb"
+
+
+def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, scheduler: str | None = None,
+              resume: bool = False, outputs: bool = True,
+              on_progress: Callable[[SweepProgress], None] | None = None) -> SweepSummary:
+    """Run every run of ``sweep`` not yet finished; record each in the results database.
+
+    Without ``resume`` the database folder must not hold any run of this sweep yet
+    (raises :class:`SimbenchInputError` naming the fix). With ``resume``, runs whose
+    result is stored with status ok are skipped; failed runs are run again.
+    """
+    t0 = time.perf_counter()
+    db = ResultsDB(db_path)
+    store = db.store
+    ids = [r.run_id for r in sweep.runs]
+    stored = store.statuses()
+    mine = {i: stored[i] for i in ids if i in stored}
+    if mine and not resume:
+        raise SimbenchInputError(
+            f"{db.path}: already holds {len(mine)} of the {len(ids)} runs of sweep '{sweep.name}'; "
+            f"pass --resume to skip finished runs, or give a new --db")
+    db.reconcile()  # result files a killed sweep wrote but did not ingest
+    db.record_sweep(sweep.name, str(sweep.path), sweep.spec.model_dump(mode="json"), sweep.factor_levels(), len(ids))
+    todo = [r for r in sweep.runs if mine.get(r.run_id) != STATUS_OK]
+    prog = SweepProgress(total=len(ids), skipped=len(ids) - len(todo))
+    prog.done = prog.skipped
+    if on_progress:
+        on_progress(prog)
+    tasks = [RunTask(r, str(store.run_dir(r.run_id).resolve()) if outputs else None) for r in todo]
+    records: list[RunRecord] = []
+    for rec in iter_records(tasks, workers, scheduler):
+        if rec.out_dir:
+            rec.out_dir = os.path.relpath(rec.out_dir, store.root)
+        store.write(rec)
+        try:
+            db.ingest([rec])
+        except Exception:  # the result file is safe; the next reconcile ingests it
+            pass
+        rec.per_frame = None
+        records.append(rec)
+        prog.done += 1
+        prog.failed += rec.status != STATUS_OK
+        prog.last = rec
+        if on_progress:
+            on_progress(prog)
+    db.reconcile()
+    return SweepSummary(db.path, len(ids), len(records), prog.failed, prog.skipped, time.perf_counter() - t0, records)
