@@ -64,6 +64,8 @@ def concat_buffers(parts: list[GeometryBuffers]) -> GeometryBuffers:
         ids=np.concatenate([p.ids for p in parts]),
         retro=np.concatenate([p.retro for p in parts]),
         faces=np.concatenate([p.faces + np.uint32(o) for p, o in zip(parts, offsets)]),
+        uv=None if all(p.uv is None for p in parts) else np.concatenate(
+            [p.uv if p.uv is not None else np.full((len(p.positions), 2), -1.0, np.float32) for p in parts]),
     )
 
 

@@ -45,6 +45,7 @@ layout(location = 1) in vec3 a_nrm;
 layout(location = 2) in vec3 a_alb;
 layout(location = 3) in int a_id;
 layout(location = 4) in float a_retro;
+layout(location = 5) in vec2 a_uv;      // texture coordinates; negative = untextured
 uniform mat4 u_world_to_cam;   // OpenCV camera frame
 uniform mat4 u_proj;           // OpenCV camera frame -> clip
 uniform int u_n_lights;
@@ -56,6 +57,8 @@ uniform vec3 u_cam_pos;
 uniform vec3 u_ring_rgb;              // coaxial ring light irradiance at 1 m (IR mode)
 uniform float u_specular;
 out vec3 v_rad;
+out vec3 v_irr;
+out vec2 v_uv;
 flat out int v_id;
 out float v_z;
 void main() {
@@ -83,7 +86,9 @@ void main() {
         vec3 h = normalize(l + vdir);
         spec += irr * (ndl > 0.0 ? pow(max(dot(n, h), 0.0), 32.0) : 0.0);
     }
-    v_rad = a_alb * e * 0.318309886 + u_specular * spec * 0.05;
+    v_irr = e * 0.318309886;
+    v_uv = a_uv;
+    v_rad = (a_uv.x < 0.0 ? a_alb * v_irr : vec3(0.0)) + u_specular * spec * 0.05;
     // Retro-reflective material returns light towards its source: with a ring light
     // around the lens the whole sphere appears uniformly bright (glass-bead tape).
     v_rad += a_retro * u_ring_rgb / dc2;
@@ -96,13 +101,18 @@ void main() {
 _FRAG = """
 #version 330 core
 in vec3 v_rad;
+in vec3 v_irr;
+in vec2 v_uv;
 flat in int v_id;
 in float v_z;
+uniform sampler2D u_tex;
 layout(location = 0) out vec4 o_rad;
 layout(location = 1) out int o_id;
 layout(location = 2) out float o_depth;
 void main() {
-    o_rad = vec4(v_rad, 1.0);
+    vec3 rad = v_rad;
+    if (v_uv.x >= 0.0) rad += texture(u_tex, v_uv).rgb * v_irr;  // printed boards
+    o_rad = vec4(rad, 1.0);
     o_id = v_id;
     o_depth = v_z;
 }
@@ -132,6 +142,8 @@ class GeometryBuffers:
     ids : (V,) int32 (0 is background; see :mod:`simbench.render.ids`)
     retro : (V,) float32 retro-reflective gain (0 for ordinary surfaces)
     faces : (T, 3) uint32 vertex indices
+    uv : (V, 2) float32 texture coordinates in 0..1 for textured vertices, -1 elsewhere
+        (None: untextured); the texture is set with :meth:`Rasterizer.set_texture`
     """
 
     positions: np.ndarray
@@ -140,6 +152,7 @@ class GeometryBuffers:
     ids: np.ndarray
     retro: np.ndarray
     faces: np.ndarray
+    uv: np.ndarray | None = None
 
 
 def _compile(src: str, kind) -> int:
@@ -169,10 +182,12 @@ class _Mesh:
             gl.glEnableVertexAttribArray(loc)
             gl.glVertexAttribPointer(loc, 3, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
         self._static = []
+        uv = np.full((self.n, 2), -1.0, np.float32) if buf.uv is None else np.ascontiguousarray(buf.uv, np.float32)
         for loc, arr, comps, ityp in (
             (2, np.ascontiguousarray(buf.albedo, np.float32), 3, None),
             (3, np.ascontiguousarray(buf.ids, np.int32), 1, gl.GL_INT),
             (4, np.ascontiguousarray(buf.retro, np.float32), 1, None),
+            (5, uv, 2, None),
         ):
             vbo = gl.glGenBuffers(1)
             self._static.append(vbo)
@@ -276,6 +291,26 @@ class Rasterizer:
         """Topology and per-vertex attributes of the moving geometry (set once)."""
         self.context.make_current()
         self._dynamic = _Mesh(buf, dynamic=True)
+
+    def set_texture(self, image: np.ndarray) -> None:
+        """The one texture (linear albedo 0..1, ``(H, W)`` or ``(H, W, 3)``), bilinear with mipmaps."""
+        self.context.make_current()
+        img = np.asarray(image, np.float32)
+        if img.ndim == 2:
+            img = np.repeat(img[..., None], 3, axis=2)
+        tex = gl.glGenTextures(1)
+        gl.glActiveTexture(gl.GL_TEXTURE0)
+        gl.glBindTexture(gl.GL_TEXTURE_2D, tex)
+        gl.glTexImage2D(gl.GL_TEXTURE_2D, 0, gl.GL_RGB32F, img.shape[1], img.shape[0], 0, gl.GL_RGB, gl.GL_FLOAT,
+                        np.ascontiguousarray(img))
+        gl.glGenerateMipmap(gl.GL_TEXTURE_2D)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MIN_FILTER, gl.GL_LINEAR_MIPMAP_LINEAR)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MAG_FILTER, gl.GL_LINEAR)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_WRAP_S, gl.GL_CLAMP_TO_EDGE)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_WRAP_T, gl.GL_CLAMP_TO_EDGE)
+        gl.glUseProgram(self._prog)
+        gl.glUniform1i(gl.glGetUniformLocation(self._prog, "u_tex"), 0)
+        self._texture = tex
 
     def update_dynamic(self, positions: np.ndarray, normals: np.ndarray) -> None:
         """New world positions/normals ``(V, 3)`` of the moving geometry."""
