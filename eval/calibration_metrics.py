@@ -43,6 +43,11 @@ from mocap.calibration import Calibration, Camera
 Align = Literal["none", "rigid", "similarity"]
 
 
+def _angle_deg(R: np.ndarray) -> float:
+    """Rotation angle of ``R`` in degrees (via quaternions: accurate near 0, unlike arccos of the trace)."""
+    return float(np.degrees(Rotation.from_matrix(R).magnitude()))
+
+
 def _normalized_grid(cam: Camera, n: int = 41) -> np.ndarray:
     """Ideal normalised coordinates ``(n*n', 2)`` of a pixel grid covering ``cam``'s image."""
     w, h = cam.size
@@ -118,8 +123,7 @@ def compare_cameras(estimated: Camera, truth: Camera, R_align: np.ndarray | None
     # Camera in the true world: x_cam = R_e x_est + t_e, x_est = R_a^T (x_true - t_a) / s.
     R_e_aligned = estimated.R @ R_align.T
     c_e_aligned = s_align * R_align @ estimated.center + t_align
-    dR = R_e_aligned @ truth.R.T
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))))
+    angle = _angle_deg(R_e_aligned @ truth.R.T)
     return {
         "focal_error_pct": float(100.0 * max(abs(fx_e - fx_t) / fx_t, abs(fy_e - fy_t) / fy_t)),
         "fx_error_px": float(fx_e - fx_t),
@@ -171,7 +175,7 @@ def compare_calibrations(estimated: Calibration, truth: Calibration, align: Alig
         else:
             summary[k] = float(np.max(vals))
         summary[k + "_mean"] = float(np.mean(np.abs(vals)))
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    angle = _angle_deg(R)
     return {
         "per_camera": per,
         "summary": summary,

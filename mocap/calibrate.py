@@ -280,6 +280,9 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
     names = obs.camera_names
     C, V = obs.n_cameras, obs.n_views
     ref = obs.camera_index(reference_camera) if reference_camera is not None else 0
+    floor_index = _resolve_view(floor_view, obs) if floor_view is not None else None  # fail before the work
+    if world_camera is not None:
+        obs.camera_index(world_camera)
     obj = obs.object_points
     usable = obs.usable(iopt.min_corners)
     rejected: dict[str, dict[str, str]] = {n: {} for n in names}
@@ -390,8 +393,8 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
         view_rms = {names[0]: res_views}
 
     # 4. world frame ---------------------------------------------------------------
-    if floor_view is not None:
-        v = _resolve_view(floor_view, obs)
+    if floor_index is not None:
+        v = floor_index
         if not np.isfinite(t_wb[v]).all():
             raise CalibrationError(f"floor view {obs.view_labels[0][v]!r} (index {v}): no camera saw the whole board in it; "
                                    f"take a picture of the board lying on the floor that at least one camera sees entirely")

@@ -199,6 +199,7 @@ def canonical_checkerboard_order(gray: np.ndarray, corners_px: np.ndarray, spec:
 
 
 def _border_sides(xy: np.ndarray, size: tuple[int, int], margin: float) -> list[str]:
+    """Image edges that any of the pixel positions ``(n, 2)`` is beyond (or within ``margin`` of)."""
     w, h = size
     sides = []
     if np.any(xy[:, 0] < margin):
@@ -210,6 +211,26 @@ def _border_sides(xy: np.ndarray, size: tuple[int, int], margin: float) -> list[
     if np.any(xy[:, 1] > h - 1 - margin):
         sides.append("bottom")
     return sides
+
+
+def _charuco_outline_sides(board, spec: BoardSpec, mk_corners, mk_ids, size: tuple[int, int], margin: float) -> list[str]:
+    """Edges the ChArUco board extends beyond, from the homography of the markers seen."""
+    obj_all = board.getObjPoints()
+    ids_all = np.asarray(board.getIds()).ravel()
+    obj, img = [], []
+    for c, i in zip(mk_corners, np.asarray(mk_ids).ravel()):
+        k = np.flatnonzero(ids_all == i)
+        if len(k):
+            obj.append(np.asarray(obj_all[k[0]])[:, :2])
+            img.append(np.asarray(c).reshape(-1, 2))
+    if not obj:
+        return []
+    H, _ = cv2.findHomography(np.concatenate(obj).astype(np.float64), np.concatenate(img).astype(np.float64), 0)
+    if H is None:
+        return _border_sides(np.concatenate(img), size, margin)
+    w, h = spec.squares[0] * spec.square_length_m, spec.squares[1] * spec.square_length_m
+    outline = cv2.perspectiveTransform(np.array([[[0, 0]], [[w, 0]], [[w, h]], [[0, h]]], dtype=np.float64), H).reshape(-1, 2)
+    return _border_sides(outline, size, 0.0)
 
 
 def _empty(size: tuple[int, int], sharpness: float, problem: str, detail: str, fix: str) -> BoardDetection:
@@ -329,8 +350,7 @@ def _detect_charuco(gray: np.ndarray, spec: BoardSpec, settings: DetectionSettin
                       f"the {n} board corners seen lie on one line", "show more of the board to the camera")
     total = spec.n_corners
     if n_markers > 0:
-        xy = np.concatenate([np.asarray(c).reshape(-1, 2) for c in mk_corners])
-        sides = _border_sides(xy, size, settings.border_margin_px)
+        sides = _charuco_outline_sides(board, spec, mk_corners, mk_ids, size, settings.border_margin_px)
         if sides:
             return _empty(size, sharpness, "cut off",
                           f"board cut off at the image border: {n_markers} markers and {n} of {total} corners visible, touching the {'/'.join(sides)} edge",

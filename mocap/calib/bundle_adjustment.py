@@ -352,15 +352,14 @@ def bundle_adjust(intrinsics: np.ndarray, R_cw: np.ndarray, t_cw: np.ndarray, *,
     bad = ~np.isfinite(rms) | (rms > opt.max_rms_px)
     bad &= cnt > 0
     if bad.any():
+        checks = ("check that view i of every camera shows the same moment (synchronise the videos, keep the "
+                  "image lists in the same order), that --board-size and --square-mm match the printed board, and "
+                  "drop motion-blurred views; the camera with the largest error is usually the one at fault")
         if sol.status == 0:
             fix = (f"raise the evaluation budget (now {opt.max_evaluations}, e.g. --ba-max-evaluations "
-                   f"{4 * opt.max_evaluations}); if the error stays large, check the items below")
+                   f"{4 * opt.max_evaluations}); if the error stays large, {checks}")
         else:
-            fix = ""
-        fix = (fix + "; " if fix else "") + (
-            "check that view i of every camera shows the same moment (synchronise the videos, keep the image "
-            "lists in the same order), that --board-size and --square-mm match the printed board, and drop "
-            "motion-blurred views; the camera with the largest error is usually the one at fault")
+            fix = checks
         raise BundleAdjustmentError(result.cost, result.evaluations,
                                     {n: float(v) for n, v in zip(camera_names, rms)},
                                     opt.max_rms_px, result.message, fix)

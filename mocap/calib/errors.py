@@ -111,7 +111,7 @@ class BundleAdjustmentError(CalibrationError):
         super().__init__(
             f"bundle adjustment did not converge: after {iterations} function evaluations the cost is "
             f"{cost:.4g} and the reprojection RMS is {per_cam} (worst camera {worst!r}; limit {max_rms_px:g} px); "
-            f"solver: {status_message}. Fix: {fix}"
+            f"solver: {status_message.rstrip('.')}. Fix: {fix}."
         )
 
 

@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from mocap.calib.boards import BoardSpec, board_object_points
+from mocap.calib.errors import CalibrationError
 
 
 @dataclass
@@ -79,8 +80,10 @@ class BoardObservations:
         return n >= need
 
     def camera_index(self, name: str) -> int:
+        """Index of camera ``name``; :class:`CalibrationError` naming the cameras if unknown."""
         if name not in self.camera_names:
-            raise KeyError(f"no camera named {name!r}; cameras are {self.camera_names}")
+            raise CalibrationError(f"no camera named {name!r}; the cameras are {', '.join(self.camera_names)} "
+                                   f"(check --reference / --world-camera)")
         return self.camera_names.index(name)
 
 

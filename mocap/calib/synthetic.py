@@ -81,3 +81,70 @@ def render_board_view(camera: Camera, R_wb: np.ndarray, t_wb: np.ndarray, spec: 
             raise ValueError("render_board_view: pass rng (numpy.random.Generator) when noise_sigma > 0")
         img = img + rng.normal(0.0, noise_sigma, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def look_at(center: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera ``(R (3, 3), t (3,))`` of a camera at ``center`` looking at ``target``.
+
+    Camera axes follow OpenCV: ``z`` forward, ``x`` right, ``y`` down (``up`` is world up).
+    """
+    c = np.asarray(center, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - c
+    z /= np.linalg.norm(z)
+    x = np.cross(z, np.asarray(up, dtype=np.float64))
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ c
+
+
+def observe_board(calibration, R_wb: np.ndarray, t_wb: np.ndarray, spec: BoardSpec, *,
+                  rng: np.random.Generator, noise_px: float = 0.0, partial: bool | None = None,
+                  max_view_angle_deg: float = 75.0, margin_px: float = 5.0) -> np.ndarray:
+    """Exact board-corner observations of a rig, as a detector would report them.
+
+    Parameters
+    ----------
+    calibration : mocap.calibration.Calibration
+        The true rig.
+    R_wb, t_wb : (V, 3, 3), (V, 3) float
+        World-from-board pose of each view, metres.
+    spec : BoardSpec
+    rng : numpy.random.Generator
+        For the pixel noise.
+    noise_px : float
+        Gaussian noise per coordinate, pixels.
+    partial : bool, optional
+        Keep views where only part of the board is in the image (default: ChArUco yes,
+        checkerboard no, as the detectors behave).
+    max_view_angle_deg : float
+        The printed face is seen only when the angle between the board normal and the
+        line of sight is below this.
+    margin_px : float
+        Corners closer than this to the image edge are not detected.
+
+    Returns
+    -------
+    (C, V, N, 2) float
+        Pixels, NaN where not seen.
+    """
+    obj = board_object_points(spec)
+    partial = spec.kind == "charuco" if partial is None else partial
+    R_wb = np.asarray(R_wb, dtype=np.float64)
+    t_wb = np.asarray(t_wb, dtype=np.float64)
+    V = len(R_wb)
+    pw = np.einsum("vij,nj->vni", R_wb, obj) + t_wb[:, None, :]  # (V, N, 3)
+    into_board = R_wb[:, :, 2]  # board +z in world, (V, 3)
+    out = np.full((len(calibration), V, len(obj), 2), np.nan)
+    cos_max = np.cos(np.radians(max_view_angle_deg))
+    for c, cam in enumerate(calibration):
+        sight = pw.mean(axis=1) - cam.center
+        sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+        facing = np.einsum("vi,vi->v", sight, into_board) > cos_max
+        uv = cam.project(pw.reshape(-1, 3)).reshape(V, len(obj), 2)
+        ok = cam.in_image(uv.reshape(-1, 2), margin_px=margin_px).reshape(V, len(obj)) & facing[:, None]
+        keep = ok.sum(axis=1) >= 6 if partial else ok.all(axis=1)
+        ok &= keep[:, None]
+        noisy = uv + rng.normal(0.0, noise_px, uv.shape) if noise_px > 0 else uv
+        out[c] = np.where(ok[..., None], noisy, np.nan)
+    return out
