@@ -38,7 +38,7 @@ from mocap.calib.extrinsics import board_poses_pnp, initial_rig
 from mocap.calib.geometry import intrinsics_from_vector, intrinsics_vector
 from mocap.calib.intrinsics import IntrinsicsOptions, calibrate_intrinsics
 from mocap.calib.observations import BoardObservations, WandObservations
-from mocap.calib.wand import WandSpec, triangulate_wand, wand_distances, wand_initial_rig
+from mocap.calib.wand import WandSpec, label_collinear_wand, triangulate_wand, wand_initial_rig
 from mocap.calib.world_frame import camera_transform, floor_transform, transform_cameras, transform_points, transform_poses
 from mocap.calibration import Calibration, Camera
 from mocap.errors import InputFileError
@@ -279,6 +279,12 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
         fix_aspect_ratio=iopt.fix_aspect_ratio, fix_principal_point=iopt.fix_principal_point, zero_tangent=iopt.zero_tangent)
     names = obs.camera_names
     C, V = obs.n_cameras, obs.n_views
+    if C > 1 and not obs.board.orientation_unique:
+        w, h = obs.board.squares
+        raise CalibrationError(
+            f"the {obs.board.describe()} has {w}x{h} squares and looks the same turned by 180 deg, so cameras may "
+            f"number its corners differently; for several cameras use a checkerboard with an even number of squares "
+            f"along one side and an odd number along the other (e.g. 9x6 inner corners = 10x7 squares) or a ChArUco board")
     ref = obs.camera_index(reference_camera) if reference_camera is not None else 0
     floor_index = _resolve_view(floor_view, obs) if floor_view is not None else None  # fail before the work
     if world_camera is not None:
@@ -516,8 +522,9 @@ def run_calibrate_cli(cameras: Sequence[str], out: str, *, board: str = "checker
     out : str
         Output stem (``.toml``, ``.yml`` and ``.report.json`` are written).
     wand_file : str, optional
-        ``.npz`` with ``markers_px`` ``(C, F, 3, 2)`` (cameras in the order given) and
-        optionally ``camera_names``.
+        ``.npz`` with ``markers_px`` ``(C, F, 3, 2)`` labelled wand markers (or
+        ``blobs_px``, the same unlabelled, for a collinear wand) in pixels, cameras in the
+        order given or named by an optional ``camera_names`` array.
     wand_distances_mm : str, optional
         ``"d01,d12,d02"`` or ``"d01,d12"`` for a collinear wand.
     intrinsics : str, optional
@@ -544,11 +551,15 @@ def run_calibrate_cli(cameras: Sequence[str], out: str, *, board: str = "checker
         wand = WandSpec.collinear(*d) if len(d) == 2 else WandSpec(tuple(d))
         try:
             with np.load(wand_file, allow_pickle=False) as z:
-                px = z["markers_px"]
+                if "markers_px" in z:
+                    px = z["markers_px"]
+                else:  # three unlabelled blobs per camera and frame
+                    px = label_collinear_wand(z["blobs_px"], wand)
                 wnames = [str(n) for n in z["camera_names"]] if "camera_names" in z else list(inputs)
         except (OSError, KeyError, ValueError) as exc:
-            raise InputFileError(Path(wand_file), f"not a wand file ({exc})",
-                                 "save one with numpy.savez(path, markers_px=(C, F, 3, 2) pixels, camera_names=[...])") from exc
+            raise InputFileError(Path(wand_file), f"not a usable wand file ({exc})",
+                                 "save one with numpy.savez(path, markers_px=(C, F, 3, 2) labelled pixels "
+                                 "[or blobs_px=(C, F, 3, 2) unlabelled, collinear wand], camera_names=[...])") from exc
         wand_obs = WandObservations(wnames, px)
     known = Calibration.load(intrinsics) if intrinsics is not None else None
     fv: int | str | None = None

@@ -19,7 +19,7 @@ from mocap.calib.boards import BoardSpec, board_object_points
 from mocap.calib.bundle_adjustment import BundleAdjustmentOptions
 from mocap.calib.observations import BoardObservations, WandObservations
 from mocap.calib.synthetic import look_at, observe_board
-from mocap.calib.wand import WandSpec
+from mocap.calib.wand import WandSpec, label_collinear_wand
 from mocap.calib.world_frame import FLOOR_FROM_BOARD
 from mocap.calibrate import calibrate_from_observations
 from mocap.calibration import Calibration, Camera
@@ -216,3 +216,21 @@ def test_board_plus_wand_refinement(rig_and_views):
     err = np.linalg.norm(res.wand_points_world[ok] - truth_cam0[ok], axis=2)
     assert ok.sum() > 30
     assert np.sqrt(np.mean(err ** 2)) < 0.003
+
+
+def test_collinear_wand_blobs_are_labelled():
+    rng = np.random.default_rng(14)
+    rig = make_rig()
+    wand = WandSpec.collinear(0.2, 0.3)
+    px = observe_points(rig, wand_frames(rng, 50, wand), rng, 0.1)
+    shuffled = px.copy()
+    for c in range(px.shape[0]):
+        for f in range(px.shape[1]):
+            shuffled[c, f] = px[c, f, rng.permutation(3)]
+    labelled = label_collinear_wand(shuffled, wand)
+    complete = np.isfinite(px).all(axis=(2, 3))
+    got = np.isfinite(labelled).all(axis=(2, 3))
+    assert got.sum() >= 0.95 * complete.sum()
+    np.testing.assert_array_equal(labelled[got], px[got])
+    with pytest.raises(ValueError, match="too alike"):
+        label_collinear_wand(shuffled, WandSpec.collinear(0.25, 0.25))

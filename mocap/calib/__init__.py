@@ -17,7 +17,7 @@ from mocap.calib.errors import (
 )
 from mocap.calib.intrinsics import IntrinsicsOptions, IntrinsicsResult, calibrate_intrinsics
 from mocap.calib.observations import BoardObservations, WandObservations
-from mocap.calib.wand import WandSpec
+from mocap.calib.wand import WandSpec, label_collinear_wand
 
 __all__ = [
     "BoardDetection", "DetectionSettings", "detect_board",
@@ -26,5 +26,5 @@ __all__ = [
     "BoardNotFoundError", "BundleAdjustmentError", "CalibrationError", "DegenerateViewsError",
     "DisconnectedCamerasError", "ViewFailure", "WandError",
     "IntrinsicsOptions", "IntrinsicsResult", "calibrate_intrinsics",
-    "BoardObservations", "WandObservations", "WandSpec",
+    "BoardObservations", "WandObservations", "WandSpec", "label_collinear_wand",
 ]

@@ -150,3 +150,55 @@ def wand_initial_rig(intrinsics: np.ndarray, markers_px: np.ndarray, spec: WandS
             raise WandError(f"cameras {camera_names[parent]!r} and {camera_names[child]!r}: could not scale the wand points")
         R_cw[child], t_cw[child] = compose_poses(R, t * scale, R_cw[parent], t_cw[parent])
     return R_cw, t_cw, tree
+
+
+def label_collinear_wand(blobs_px: np.ndarray, spec: WandSpec, max_line_residual_px: float = 3.0) -> np.ndarray:
+    """Label unordered blobs of a collinear wand as markers 0, 1, 2.
+
+    The middle blob is the one between the other two; marker 0 is the end nearer to it
+    when ``d01 < d12`` (the farther one otherwise). Perspective changes the ratio of
+    the two segments a little, so the wand's two segments must differ clearly in length
+    (by 25 % or more).
+
+    Parameters
+    ----------
+    blobs_px : (C, F, 3, 2) float
+        The three wand blobs per camera and frame, in any order; NaN rows where a camera
+        did not see three blobs.
+    spec : WandSpec
+        Must be collinear (``d02 = d01 + d12``).
+    max_line_residual_px : float
+        Frames whose middle blob is farther than this from the line through the ends are
+        left out (NaN): probably not the wand.
+
+    Returns
+    -------
+    (C, F, 3, 2) float
+        Labelled markers; NaN where the frame could not be labelled.
+    """
+    d01, d12, d02 = spec.distances_m
+    if abs(d01 + d12 - d02) > 1e-6 * d02:
+        raise ValueError(f"label_collinear_wand needs a collinear wand (d02 = d01 + d12), got distances {spec.distances_m}")
+    ratio = d01 / d12
+    if 0.8 < ratio < 1.25:
+        raise ValueError(f"wand segments {d01} m and {d12} m are too alike to tell the ends apart; "
+                         f"use a wand whose two segments differ by at least 25 %")
+    b = np.asarray(blobs_px, dtype=np.float64)
+    ok = np.isfinite(b).all(axis=(2, 3))
+    dist = np.linalg.norm(b[:, :, :, None, :] - b[:, :, None, :, :], axis=4)  # (C, F, 3, 3)
+    mid = np.argmin(np.nan_to_num(dist.sum(axis=3), nan=np.inf), axis=2)  # (C, F)
+    ends = np.array([[1, 2], [0, 2], [0, 1]])[mid]  # (C, F, 2)
+    take = lambda idx: np.take_along_axis(b, idx[..., None, None].repeat(2, axis=3), axis=2)[:, :, 0]  # noqa: E731
+    pm, pa, pb = take(mid), take(ends[..., 0]), take(ends[..., 1])
+    da, db = np.linalg.norm(pa - pm, axis=2), np.linalg.norm(pb - pm, axis=2)
+    a_is_zero = (da < db) == (ratio < 1.0)
+    p0 = np.where(a_is_zero[..., None], pa, pb)
+    p2 = np.where(a_is_zero[..., None], pb, pa)
+    line = p2 - p0
+    cross = line[..., 0] * (pm - p0)[..., 1] - line[..., 1] * (pm - p0)[..., 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        residual = np.abs(cross) / np.linalg.norm(line, axis=2)
+    good = ok & (residual <= max_line_residual_px)
+    out = np.stack([p0, pm, p2], axis=2)
+    out[~good] = np.nan
+    return out
