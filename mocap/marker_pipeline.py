@@ -20,6 +20,7 @@ from mocap.calibration import Calibration
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, initial_labels
+from mocap.reassociation import ReassociationParams, reassociate
 from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.tracking import track_cameras
 from mocap.types import Detections, Tracks2D, Trajectories
@@ -32,7 +33,12 @@ class MarkerPipelineParams:
     tracker_params: dict = field(default_factory=dict)
     label_init: LabelInitParams = field(default_factory=LabelInitParams)
     reconstruction: ReconstructionParams = field(default_factory=ReconstructionParams)
+    reassociation: ReassociationParams | None = field(default_factory=ReassociationParams)
+    reassociation_passes: int = 2
     solve_skeleton: bool = True
+    model_guided: bool = True
+    model_gate_px: float = 5.0
+    model_outlier_mm: float = 15.0
 
 
 @dataclass
@@ -41,7 +47,9 @@ class MarkerCapture:
 
     detections : C lists of F :class:`Detections`
     label_init : first-frame labelling
-    tracks : labelled 2D tracks ``(F, C, M, 2)``
+    tracks : labelled 2D tracks ``(F, C, M, 2)``; ``xy`` holds the measurements used for
+        triangulation (after 3D-guided re-association), ``predicted_xy``/``status`` the
+        2D trackers' own estimates
     trajectories : labelled 3D trajectories ``(F, M, 3)`` metres
     skeleton : solved skeleton (``mocap.skeleton.SkeletonFit``) or None
     timings_ms : stage name -> total milliseconds
@@ -53,6 +61,7 @@ class MarkerCapture:
     trajectories: Trajectories
     skeleton: object | None
     timings_ms: dict[str, float]
+    reassociation: dict[str, int] = field(default_factory=dict)
 
 
 class DetectionStream:
@@ -109,15 +118,72 @@ def capture_from_detections(
     timings["tracking"] = (time.perf_counter() - t0) * 1e3
     t0 = time.perf_counter()
     traj = reconstruct(tracks, calibration, params.reconstruction, times=np.asarray(times, float))
+    reassoc_stats: dict[str, int] = {}
+
+    def add_stats(stats: dict[str, int]) -> None:
+        for k, v in stats.items():
+            reassoc_stats[k] = reassoc_stats.get(k, 0) + v
+
+    measured = tracks
+    if params.reassociation is not None:
+        # 3D-guided correspondence: reproject, re-associate detections, reconstruct again.
+        for _ in range(params.reassociation_passes):
+            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
+            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
+            add_stats(stats)
     timings["reconstruction"] = (time.perf_counter() - t0) * 1e3
     fit = None
     if params.solve_skeleton and subject is not None:
-        from mocap.skeleton import solve_skeleton
+        from mocap.skeleton import SkeletonSolver
 
         t0 = time.perf_counter()
-        fit = solve_skeleton(traj, subject)
+        solver = SkeletonSolver(subject)
+        fit = solver.solve(traj)
+        if params.reassociation is not None and params.model_guided:
+            # Model-guided labelling: the fitted skeleton predicts every marker, also
+            # those the cameras' trackers lost; markers that disagree with the fit by
+            # more than ``model_outlier_mm`` are left out of a second fit first.
+            traj_in = _drop_outliers(traj, fit, params.model_outlier_mm)
+            fit = solver.solve(traj_in)
+            predicted = _model_markers(solver, fit, traj.labels)
+            gate = np.full(predicted.shape[:2], params.model_gate_px)
+            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation,
+                                          points=predicted, gate_px=gate)
+            add_stats({f"model_{k}": v for k, v in stats.items()})
+            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
+            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
+            add_stats(stats)
+            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
+            fit = solver.solve(traj)
         timings["skeleton"] = (time.perf_counter() - t0) * 1e3
-    return MarkerCapture(detections, init, tracks, traj, fit, timings)
+    tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
+    return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
+
+
+def _drop_outliers(traj: Trajectories, fit, max_mm: float) -> Trajectories:
+    """Trajectories without the points that disagree with a skeleton fit by > ``max_mm``."""
+    idx = [fit.marker_labels.index(n) if n in fit.marker_labels else -1 for n in traj.labels]
+    err = np.full(traj.xyz.shape[:2], np.nan)
+    for j, i in enumerate(idx):
+        if i >= 0:
+            err[:, j] = fit.marker_errors_mm[:, i]
+    xyz = traj.xyz.copy()
+    xyz[np.nan_to_num(err, nan=0.0) > max_mm] = np.nan
+    return Trajectories(list(traj.labels), xyz, traj.times, traj.filled, traj.residual_px, traj.n_views)
+
+
+def _model_markers(solver, fit, labels: list[str]) -> np.ndarray:
+    """Markers of the fitted model ``(F, M, 3)`` in ``labels`` order (NaN where unsolved)."""
+    F = fit.q.shape[0]
+    out = np.full((F, len(labels), 3), np.nan)
+    order = [fit.marker_labels.index(n) if n in fit.marker_labels else -1 for n in labels]
+    for f in range(F):
+        if np.isfinite(fit.q[f]).all():
+            pos = solver.marker_positions(fit.q[f])
+            for j, i in enumerate(order):
+                if i >= 0:
+                    out[f, j] = pos[i]
+    return out
 
 
 def capture_markers(
