@@ -1,0 +1,501 @@
+"""Benchmarks of the 2D trackers: per-frame cost (seed 000 Tables V-VII) and a quick 2D
+robustness check of seed 000's failure categories.
+
+Cost
+----
+:func:`run_tracker_benchmark` times the whole per-frame tracking call (predict +
+associate + update, :meth:`~mocap.trackers.Tracker2D.step`) of every tracker for 1..30
+markers moving on simple smooth paths in a 640x480 image (detections = true positions +
+0.1 px noise, shuffled), with ``time.perf_counter_ns``, and reports the 5th percentile,
+median, 95th percentile and maximum in ms. In the same run it times a *reference*: one
+``filterpy.kalman.KalmanFilter`` per marker, predicted and updated in a Python loop,
+with the same gated Hungarian association (:func:`mocap.trackers.base.gated_assignment`),
+and reports how many times faster the vectorised Kalman tracker is.
+``simbench bench trackers`` prints :func:`format_benchmark_table` of it.
+
+Robustness (quick check)
+------------------------
+:func:`synthetic_trial` draws a short 2D sequence of one of seed 000's categories
+(``slow``, ``rapid`` zigzags, ``acceleration``, ``occlusion`` by a barrier, ``swap`` of two
+markers crossing closely, whose blobs merge when they overlap -- both labelled, or, as in
+seed 000, a labelled marker and an unlabelled one) directly as detections,
+without rendering; :func:`run_robustness_check` counts per category and tracker the
+videos in which a label lost its marker. The rendered study (``simbench study
+trackers``) is the reference; this is the fast stand-in used by the tests and while
+tuning a tracker.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from mocap.trackers import available_trackers, make_tracker
+from mocap.trackers.base import gated_assignment
+
+IMAGE_SIZE = (640, 480)  # (width, height) px
+REFERENCE_NAME = "filterpy_loop"
+CATEGORIES = ("slow", "rapid", "acceleration", "occlusion", "swap")
+
+
+# ----------------------------------------------------------------------------- cost
+@dataclass(frozen=True)
+class BenchmarkRow:
+    """Per-frame tracking cost of one tracker for one marker count, in milliseconds."""
+
+    tracker: str
+    n_markers: int
+    p5_ms: float
+    median_ms: float
+    p95_ms: float
+    max_ms: float
+
+
+@dataclass
+class BenchmarkTable:
+    """Result of :func:`run_tracker_benchmark`.
+
+    Attributes
+    ----------
+    rows : list of BenchmarkRow
+        One per tracker (including :data:`REFERENCE_NAME`) and marker count.
+    speedup : dict int -> float
+        Median cost of the filterpy loop over that of the vectorised ``kalman``, per
+        marker count.
+    n_frames : int
+    """
+
+    rows: list[BenchmarkRow]
+    speedup: dict[int, float] = field(default_factory=dict)
+    n_frames: int = 0
+
+    def row(self, tracker: str, n_markers: int) -> BenchmarkRow:
+        for r in self.rows:
+            if r.tracker == tracker and r.n_markers == n_markers:
+                return r
+        raise KeyError(f"no benchmark row for tracker {tracker!r} with {n_markers} markers")
+
+
+def smooth_paths(n_markers: int, n_frames: int, rng: np.random.Generator, dt: float = 1.0 / 30.0) -> np.ndarray:
+    """Simple smooth 2D trajectories: markers on a jittered grid, each circling slowly.
+
+    Returns
+    -------
+    (F, M, 2) float
+        Pixel positions inside a 640x480 image.
+    """
+    W, H = IMAGE_SIZE
+    cols = int(np.ceil(np.sqrt(n_markers * W / H)))
+    rows = int(np.ceil(n_markers / cols))
+    gx, gy = np.meshgrid((np.arange(cols) + 0.5) * W / cols, (np.arange(rows) + 0.5) * H / rows)
+    centres = np.stack([gx.ravel(), gy.ravel()], axis=1)[:n_markers]
+    centres += rng.uniform(-5, 5, centres.shape)
+    radius = rng.uniform(8.0, 20.0, n_markers)  # px
+    omega = rng.choice([-1.0, 1.0], n_markers) * 2 * np.pi / rng.uniform(2.0, 4.0, n_markers)  # rad/s
+    phase = rng.uniform(0, 2 * np.pi, n_markers)
+    t = np.arange(n_frames)[:, None] * dt
+    ang = phase + omega * t
+    return np.stack([centres[:, 0] + radius * np.cos(ang), centres[:, 1] + radius * np.sin(ang)], axis=-1)
+
+
+def _noisy_shuffled(true_xy: np.ndarray, noise_px: float, rng: np.random.Generator) -> list[np.ndarray]:
+    F, M, _ = true_xy.shape
+    noisy = true_xy + rng.normal(0.0, noise_px, true_xy.shape)
+    return [noisy[f, rng.permutation(M)] for f in range(F)]
+
+
+def _percentiles(ns: np.ndarray) -> tuple[float, float, float, float]:
+    ms = np.asarray(ns, dtype=np.float64) * 1e-6
+    p5, p50, p95 = np.percentile(ms, [5, 50, 95])
+    return float(p5), float(p50), float(p95), float(ms.max())
+
+
+def _time_tracker(name: str, true_xy: np.ndarray, dets: list[np.ndarray], dt: float, rng: np.random.Generator) -> np.ndarray:
+    trk = make_tracker(name, true_xy[0], dt, rng)
+    trk.associate(dets[0])
+    step = trk.step
+    clock = time.perf_counter_ns
+    out = np.empty(len(dets) - 1, dtype=np.int64)
+    for f in range(1, len(dets)):
+        d = dets[f]
+        t0 = clock()
+        step(d)
+        out[f - 1] = clock() - t0
+    return out
+
+
+def _time_filterpy_loop(true_xy: np.ndarray, dets: list[np.ndarray], dt: float) -> np.ndarray:
+    """Reference: one filterpy KalmanFilter per marker in a Python loop.
+
+    Same model as the ``kalman`` tracker's defaults (constant velocity, R, initial P),
+    with a constant ``Q`` (``accel_std`` of a still marker), and the same gated
+    association on the predicted positions and ``diag(S)``.
+    """
+    from filterpy.common import Q_discrete_white_noise
+    from filterpy.kalman import KalmanFilter
+    from scipy.linalg import block_diag
+
+    from mocap.trackers import KalmanTracker, tracker_params
+
+    defaults = tracker_params("kalman")
+    r = defaults["measurement_std_px"] ** 2
+    threshold = float(-2.0 * np.log1p(-defaults["gate_probability"]))
+    proto = KalmanTracker(true_xy[0], dt, np.random.default_rng(0))
+    q = Q_discrete_white_noise(dim=2, dt=dt, var=defaults["accel_std"] ** 2)
+    M = true_xy.shape[1]
+    filters = []
+    for m in range(M):
+        kf = KalmanFilter(dim_x=4, dim_z=2)
+        kf.x = np.array([[true_xy[0, m, 0]], [0.0], [true_xy[0, m, 1]], [0.0]])
+        kf.F = proto.F
+        kf.H = proto.H
+        kf.R = proto.R
+        kf.Q = block_diag(q, q)
+        kf.P = proto.P[m].copy()
+        filters.append(kf)
+    centre = np.empty((M, 2))
+    svar = np.empty((M, 2))
+    clock = time.perf_counter_ns
+    out = np.empty(len(dets) - 1, dtype=np.int64)
+    for f in range(1, len(dets)):
+        d = dets[f]
+        t0 = clock()
+        for m, kf in enumerate(filters):
+            kf.predict()
+            centre[m, 0] = kf.x[0, 0]
+            centre[m, 1] = kf.x[2, 0]
+            svar[m, 0] = kf.P[0, 0] + r
+            svar[m, 1] = kf.P[2, 2] + r
+        idx = gated_assignment(centre, svar, d, threshold)
+        for m, kf in enumerate(filters):
+            kf.update(d[idx[m]] if idx[m] >= 0 else None)
+        out[f - 1] = clock() - t0
+    return out
+
+
+def run_tracker_benchmark(
+    marker_counts: Sequence[int] = (1, 5, 10, 15, 20, 25, 30),
+    n_frames: int = 200,
+    seed: int = 0,
+    trackers: Sequence[str] | None = None,
+    dt: float = 1.0 / 30.0,
+    noise_px: float = 0.1,
+    include_reference: bool = True,
+) -> BenchmarkTable:
+    """Time the per-frame tracking call of each tracker against the number of markers.
+
+    Parameters
+    ----------
+    marker_counts : sequence of int, default (1, 5, 10, 15, 20, 25, 30)
+    n_frames : int, default 200
+        Frames per run (the first one initialises; the others are timed).
+    seed : int, default 0
+        Seed of the trajectories, the detection noise and the stochastic trackers.
+    trackers : sequence of str, optional
+        Registry names; default every registered tracker.
+    dt : float, default 1/30
+        Frame interval, s.
+    noise_px : float, default 0.1
+        Detection noise standard deviation, px.
+    include_reference : bool, default True
+        Also time the per-marker filterpy loop (:data:`REFERENCE_NAME`).
+
+    Returns
+    -------
+    BenchmarkTable
+    """
+    if n_frames < 2:
+        raise ValueError(f"n_frames must be >= 2 (one initial frame, at least one timed), got {n_frames}")
+    names = list(trackers) if trackers is not None else available_trackers()
+    rng = np.random.default_rng(seed)
+    rows: list[BenchmarkRow] = []
+    speedup: dict[int, float] = {}
+    gc_was_enabled = gc.isenabled()
+    try:
+        for M in marker_counts:
+            true_xy = smooth_paths(int(M), n_frames, rng, dt)
+            dets = _noisy_shuffled(true_xy, noise_px, rng)
+            medians: dict[str, float] = {}
+            for name in names:
+                gc.collect()
+                gc.disable()
+                ns = _time_tracker(name, true_xy, dets, dt, np.random.default_rng([seed, M]))
+                gc.enable()
+                rows.append(BenchmarkRow(name, int(M), *_percentiles(ns)))
+                medians[name] = rows[-1].median_ms
+            if include_reference:
+                gc.collect()
+                gc.disable()
+                ns = _time_filterpy_loop(true_xy, dets, dt)
+                gc.enable()
+                rows.append(BenchmarkRow(REFERENCE_NAME, int(M), *_percentiles(ns)))
+                if "kalman" in medians:
+                    speedup[int(M)] = rows[-1].median_ms / medians["kalman"]
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+    return BenchmarkTable(rows=rows, speedup=speedup, n_frames=n_frames)
+
+
+def format_benchmark_table(table: BenchmarkTable) -> str:
+    """Seed 000 Tables V-VII layout: one block per tracker, one line per marker count."""
+    lines: list[str] = []
+    names = list(dict.fromkeys(r.tracker for r in table.rows))
+    for name in names:
+        title = f"{name} (per-marker filterpy KalmanFilter loop, reference)" if name == REFERENCE_NAME else name
+        lines.append(f"{title}: per-frame tracking cost over {table.n_frames} frames (predict + associate + update), ms")
+        lines.append(f"{'Markers':>8} {'5th pct':>9} {'Median':>9} {'95th pct':>9} {'Maximum':>9}")
+        for r in table.rows:
+            if r.tracker == name:
+                lines.append(f"{r.n_markers:>8d} {r.p5_ms:>9.4f} {r.median_ms:>9.4f} {r.p95_ms:>9.4f} {r.max_ms:>9.4f}")
+        lines.append("")
+    if table.speedup:
+        lines.append("Vectorised kalman vs per-marker filterpy loop (ratio of medians):")
+        lines.append("  " + "  ".join(f"{m}: {s:.1f}x" for m, s in table.speedup.items()))
+    return "\n".join(lines).rstrip() + "\n"
+
+
+# ----------------------------------------------------------------------- robustness
+@dataclass
+class SyntheticTrial:
+    """One synthetic 2D test video, as detections.
+
+    Attributes
+    ----------
+    category : str
+    true_xy : (F, M, 2) float
+        True marker positions, px; the first ``n_labels`` markers are labelled, the
+        others are unlabelled blobs (seed 000's "NULL" marker).
+    visible : (F, M) bool
+        Marker detectable on its own (not behind the barrier, not merged with another).
+    detections : list of F (n, 2) float arrays
+        Detected centroids, px, shuffled.
+    owner : list of F (n,) int arrays
+        Marker index of each detection, -1 for merged blobs.
+    dt : float
+        Frame interval, s.
+    """
+
+    category: str
+    true_xy: np.ndarray
+    visible: np.ndarray
+    detections: list[np.ndarray]
+    owner: list[np.ndarray]
+    dt: float
+    n_labels: int
+
+
+def _integrate(start: np.ndarray, speed: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """(F, 2) positions from a start point and per-frame speeds (px/frame) and headings (rad)."""
+    step = np.stack([speed * np.cos(heading), speed * np.sin(heading)], axis=1)
+    return start + np.concatenate([np.zeros((1, 2)), np.cumsum(step[:-1], axis=0)])
+
+
+def _zigzag(n_frames: int, rng: np.random.Generator) -> np.ndarray:
+    W, H = IMAGE_SIZE
+    margin = 40.0
+    speed = rng.uniform(8.0, 14.0)  # px/frame
+    pos = np.array([rng.uniform(200, W - 200), rng.uniform(150, H - 150)])
+    heading = rng.uniform(0, 2 * np.pi)
+    out = np.empty((n_frames, 2))
+    left = int(rng.integers(5, 11))
+    for f in range(n_frames):  # generation only, not a hot path
+        out[f] = pos
+        left -= 1
+        if left == 0:  # zigzag corner: turn sharply, either way
+            heading += rng.choice([-1.0, 1.0]) * rng.uniform(np.radians(90), np.radians(160))
+            left = int(rng.integers(5, 11))
+        nxt = pos + speed * np.array([np.cos(heading), np.sin(heading)])
+        if not margin <= nxt[0] <= W - margin:
+            heading = np.pi - heading
+        if not margin <= nxt[1] <= H - margin:
+            heading = -heading
+        pos = pos + speed * np.array([np.cos(heading), np.sin(heading)])
+    return out
+
+
+def synthetic_trial(category: str, rng: np.random.Generator, n_frames: int = 80, noise_px: float = 0.2,
+                    merge_px: float = 6.0, dt: float = 1.0 / 30.0) -> SyntheticTrial:
+    """Draw one synthetic test sequence of a seed 000 category.
+
+    Parameters
+    ----------
+    category : {"slow", "rapid", "acceleration", "occlusion", "swap"}
+    rng : numpy.random.Generator
+    n_frames : int, default 80
+    noise_px : float, default 0.2
+        Detection noise, px.
+    merge_px : float, default 6.0
+        Two markers closer than this give one blob, detected at their midpoint.
+    dt : float, default 1/30
+
+    Returns
+    -------
+    SyntheticTrial
+    """
+    W, H = IMAGE_SIZE
+    F = n_frames
+    t = np.arange(F)
+    barrier = None
+    if category == "slow":
+        speed = np.full(F, rng.uniform(1.5, 3.5))
+        turn = rng.uniform(0.03, 0.08) * np.sin(2 * np.pi * t / rng.uniform(25, 60))  # rad/frame
+        heading = rng.uniform(0, 2 * np.pi) + np.cumsum(turn)
+        xy = _integrate(np.array([W / 2, H / 2]) + rng.uniform(-60, 60, 2), speed, heading)[:, None]
+    elif category == "rapid":
+        xy = _zigzag(F, rng)[:, None]
+    elif category == "acceleration":
+        s0, s1 = rng.uniform(0.5, 1.5), rng.uniform(9.0, 13.0)
+        speed = s0 + (s1 - s0) * (t / (F - 1)) ** rng.uniform(1.0, 2.0)
+        if rng.random() < 0.5:  # braking instead of speeding up
+            speed = speed[::-1]
+        heading = rng.uniform(-0.4, 0.4) + np.cumsum(np.full(F, rng.uniform(-0.01, 0.01)))
+        dist = speed.sum()
+        x0 = (W - dist * np.cos(heading).mean()) / 2
+        xy = _integrate(np.array([x0, H / 2 + rng.uniform(-60, 60)]), speed, heading)[:, None]
+        if rng.random() < 0.5:  # right to left
+            xy[..., 0] = W - xy[..., 0]
+    elif category == "occlusion":
+        width = rng.uniform(30.0, 110.0)  # barrier width, px
+        speed = np.full(F, rng.uniform(4.0, 7.0))
+        curved = rng.random() < 0.5
+        turn = np.full(F, rng.uniform(-0.012, 0.012) if curved else 0.0)
+        heading = rng.uniform(-0.3, 0.3) + np.cumsum(turn) - turn[0]
+        start = np.array([W / 2 - speed[0] * F / 2, H / 2 + rng.uniform(-50, 50)])
+        xy = _integrate(start, speed, heading)[:, None]
+        barrier = (W / 2 - width / 2, W / 2 + width / 2)
+    elif category == "swap":
+        angle = np.radians(rng.uniform(5.0, 25.0))  # crossing angle
+        speeds = rng.uniform(3.0, 6.0, 2)
+        base = rng.uniform(0, 2 * np.pi)
+        headings = base + np.array([-angle / 2, angle / 2])
+        miss = rng.uniform(0.0, 4.0)  # closest distance at the crossing, px
+        t_cross = F / 2 + rng.uniform(-5, 5)
+        centre = np.array([W / 2, H / 2])
+        normal = np.array([-np.sin(base), np.cos(base)])
+        xy = np.empty((F, 2, 2))
+        for k in range(2):  # two markers
+            v = speeds[k] * np.array([np.cos(headings[k]), np.sin(headings[k])])
+            xy[:, k] = centre + (k - 0.5) * miss * normal + (t[:, None] - t_cross) * v
+    else:
+        raise ValueError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
+
+    M = xy.shape[1]
+    n_labels = M
+    if category == "swap" and rng.random() < 0.5:
+        n_labels = 1  # seed 000's variant: the second marker is unlabelled ("NULL")
+    visible = np.ones((F, M), dtype=bool)
+    if barrier is not None:
+        visible &= ~((xy[..., 0] > barrier[0]) & (xy[..., 0] < barrier[1]))
+    merged = np.zeros((F, M), dtype=bool)
+    if M == 2:
+        merged[:] = (np.linalg.norm(xy[:, 0] - xy[:, 1], axis=1) < merge_px)[:, None]
+    noisy = xy + rng.normal(0.0, noise_px, xy.shape)
+    dets, owners = [], []
+    for f in range(F):
+        own = np.flatnonzero(visible[f] & ~merged[f])
+        pts = [noisy[f, own]]
+        ids = [own]
+        if merged[f].any() and visible[f].all():
+            pts.append(noisy[f].mean(axis=0, keepdims=True))
+            ids.append(np.array([-1]))
+        p, i = np.concatenate(pts), np.concatenate(ids)
+        order = rng.permutation(len(p))
+        dets.append(p[order])
+        owners.append(i[order])
+    return SyntheticTrial(category, xy, visible & ~merged, dets, owners, dt, n_labels)
+
+
+def trial_losses(trial: SyntheticTrial, idx: np.ndarray) -> np.ndarray:
+    """(M,) bool: labels that ever missed or took a wrong detection while visible.
+
+    Parameters
+    ----------
+    idx : (F, M) int
+        Detection index chosen by each label per frame (-1 for none).
+    """
+    F, M = idx.shape
+    lost = np.zeros(M, dtype=bool)
+    for f in range(1, F):
+        owner = np.append(trial.owner[f], -2)  # index -1 (no detection) -> owner -2
+        own = owner[idx[f]]
+        lost |= trial.visible[f, :M] & (own != np.arange(M))
+    return lost
+
+
+def run_trial(trial: SyntheticTrial, tracker: str, rng: np.random.Generator, **params) -> tuple[np.ndarray, np.ndarray]:
+    """Track a synthetic trial from its true first-frame positions.
+
+    Returns
+    -------
+    idx : (F, M) int
+        Detection index per label and frame (M = ``trial.n_labels``).
+    predicted : (F, M, 2) float
+        Prior prediction per label and frame, px.
+    """
+    from mocap.tracking import track_camera
+
+    M = trial.n_labels
+    res = track_camera(trial.detections, trial.true_xy[0, :M], [f"m{m}" for m in range(M)], tracker, trial.dt, rng, **params)
+    idx = res.index
+    return idx, res.predicted
+
+
+@dataclass
+class RobustnessTable:
+    """Result of :func:`run_robustness_check`.
+
+    Attributes
+    ----------
+    losses : dict category -> dict tracker -> int
+        Videos in which some label lost its marker.
+    prediction_error_px : dict category -> dict tracker -> float
+        Mean distance between prediction and true position over visible frames of the
+        videos without a loss (seed 000 Tables II-IV), px.
+    videos_per_category : int
+    """
+
+    losses: dict[str, dict[str, int]]
+    prediction_error_px: dict[str, dict[str, float]]
+    videos_per_category: int
+
+
+def run_robustness_check(trackers: Sequence[str] | None = None, videos_per_category: int = 20, n_frames: int = 80,
+                         seed: int = 0, categories: Sequence[str] = CATEGORIES) -> RobustnessTable:
+    """Count losses per category and tracker on synthetic 2D trials (same trials for all)."""
+    names = list(trackers) if trackers is not None else available_trackers()
+    losses = {c: {n: 0 for n in names} for c in categories}
+    errors: dict[str, dict[str, list[float]]] = {c: {n: [] for n in names} for c in categories}
+    root = np.random.default_rng(seed)
+    for c in categories:
+        for trial_rng in root.spawn(videos_per_category):
+            trial = synthetic_trial(c, trial_rng, n_frames)
+            for n in names:
+                idx, pred = run_trial(trial, n, np.random.default_rng(0))
+                if trial_losses(trial, idx).any():
+                    losses[c][n] += 1
+                else:
+                    M = trial.n_labels
+                    err = np.linalg.norm(pred[2:] - trial.true_xy[2:, :M], axis=-1)[trial.visible[2:, :M]]
+                    errors[c][n].extend(err.tolist())
+    mean_err = {c: {n: float(np.mean(v)) if v else float("nan") for n, v in d.items()} for c, d in errors.items()}
+    return RobustnessTable(losses, mean_err, videos_per_category)
+
+
+def format_robustness_table(table: RobustnessTable) -> str:
+    """Seed 000 Table I layout (losses per category), plus mean prediction errors."""
+    names = list(next(iter(table.losses.values())))
+    lines = [f"Videos with a lost label (of {table.videos_per_category} per category)",
+             f"{'':14s}" + "".join(f"{n:>14s}" for n in names)]
+    for c, row in table.losses.items():
+        lines.append(f"{c:14s}" + "".join(f"{row[n]:>14d}" for n in names))
+    lines.append(f"{'total':14s}" + "".join(f"{sum(r[n] for r in table.losses.values()):>14d}" for n in names))
+    lines.append("")
+    lines.append("Mean prediction error, px (videos without a loss)")
+    for c, row in table.prediction_error_px.items():
+        lines.append(f"{c:14s}" + "".join(f"{row[n]:>14.2f}" for n in names))
+    return "\n".join(lines) + "\n"

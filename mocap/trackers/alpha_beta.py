@@ -1,0 +1,153 @@
+"""Alpha-beta tracker (seed 000, section III-A), vectorised over markers.
+
+Each label has a position and a velocity; the prediction moves it at constant velocity
+for one frame, ``x_p = x_s + dt v_s`` and ``v_p = v_s``. With a measurement ``x_m``
+
+.. math::
+
+    r = x_m - x_p                      \\qquad (1)
+    x_s = x_p + \\alpha r              \\qquad (2)
+    v_s = v_p + (\\beta / \\Delta t) r \\qquad (3)
+
+Seed 000 uses ``alpha = 1.0`` and ``beta = 0.8``.
+
+Search area: a circle around the prediction whose radius is learnt from the residuals
+and grows with the marker's speed (the filter has no covariance of its own)::
+
+    radius = base_radius_px + residual_gain * rms(r) + speed_gain * |v| dt
+
+with ``rms(r)`` an exponentially weighted RMS of the residual norm; while coasting it
+is multiplied by the number of frames since the last detection plus one (the
+extrapolation error grows at least linearly). After ``n`` coasted frames the residual
+has built up over ``n + 1`` frames, so equation (3) divides it by ``(n + 1) dt``; with
+no coasting that is exactly the seed's equation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.trackers.base import Tracker2D
+from mocap.trackers.registry import register_tracker
+
+
+@register_tracker("alpha_beta")
+class AlphaBetaTracker(Tracker2D):
+    """Alpha-beta filter for M markers.
+
+    Parameters
+    ----------
+    initial_xy : (M, 2) float
+        First-frame pixel positions (NaN: label starts lost).
+    dt : float
+        Frame interval in seconds.
+    rng : numpy.random.Generator
+        Unused (deterministic filter), kept for the common constructor.
+    alpha : float, default 1.0
+        Position smoothing gain, equation (2).
+    beta : float, default 0.8
+        Velocity smoothing gain, equation (3).
+    base_radius_px : float, default 4.0
+        Smallest search radius in pixels.
+    residual_gain : float, default 3.0
+        Search radius per pixel of RMS residual.
+    speed_gain : float, default 1.0
+        Search radius per pixel of motion per frame (1.0: a stop or a sharp turn stays
+        inside the search area).
+    residual_smoothing : float, default 0.2
+        Weight of the newest squared residual in the running RMS.
+    initial_residual_px : float, default 5.0
+        Starting value of the running RMS residual: a new label's velocity is unknown,
+        so its first search areas are wide and shrink as residuals come in.
+    **base_params
+        ``max_coast_frames``, ``gate_probability``, ``min_gate_px``, ``max_gate_px``
+        (see :class:`~mocap.trackers.base.Tracker2D`).
+    """
+
+    def __init__(
+        self,
+        initial_xy: np.ndarray,
+        dt: float,
+        rng: np.random.Generator,
+        *,
+        alpha: float = 1.0,
+        beta: float = 0.8,
+        base_radius_px: float = 4.0,
+        residual_gain: float = 3.0,
+        speed_gain: float = 1.0,
+        residual_smoothing: float = 0.2,
+        initial_residual_px: float = 5.0,
+        **base_params,
+    ) -> None:
+        super().__init__(initial_xy, dt, rng, **base_params)
+        if not (0.0 < alpha <= 2.0 and 0.0 <= beta <= 4.0):
+            raise ValueError(f"alpha-beta gains out of the stable range: alpha={alpha!r} (0, 2], beta={beta!r} [0, 4]")
+        if not 0.0 < residual_smoothing <= 1.0:
+            raise ValueError(f"residual_smoothing must be in (0, 1], got {residual_smoothing!r}")
+        self.alpha = float(alpha)
+        self.beta = float(beta)
+        self.base_radius_px = float(base_radius_px)
+        self.residual_gain = float(residual_gain)
+        self.speed_gain = float(speed_gain)
+        self.residual_smoothing = float(residual_smoothing)
+        self.initial_residual_px = float(initial_residual_px)
+        M = self.n_markers
+        self.x = np.array(initial_xy, dtype=np.float64)  # (M, 2) smoothed position x_s, px
+        self.v = np.zeros((M, 2))  # (M, 2) smoothed velocity v_s, px/s
+        self.res2 = np.full(M, self.initial_residual_px**2)  # (M,) running mean squared residual norm, px**2
+        self.radius = np.full(M, self.base_radius_px)  # (M,) search radius, px
+        self._svar = (self.radius * self.radius / self.gate_threshold)[:, None]
+        self._set_info()
+
+    def _predict(self) -> None:
+        self.x += self.dt * self.v  # x_p (v_p = v_s)
+        self._centre = self.x.copy()
+        # radius = base + residual_gain * rms(r) + speed_gain * |v| dt, times the frames
+        # since the last detection (plus this one) while coasting.
+        r = np.hypot(self.v[:, 0], self.v[:, 1])
+        r *= self.speed_gain * self.dt
+        r += self.residual_gain * np.sqrt(self.res2)
+        r += self.base_radius_px
+        if self._any_coasting:
+            r *= self._coast + 1
+        self.radius = r
+        # A circle of radius r is the Mahalanobis gate d2 <= g with variance r**2 / g.
+        var = r * r
+        var *= 1.0 / self.gate_threshold
+        self._svar = var[:, None]
+
+    def _correct(self, z: np.ndarray, has: np.ndarray | None) -> None:
+        r = z - self.x  # (1) residual, px
+        if has is not None:
+            r[~has] = 0.0  # no measurement: x_s = x_p, v_s = v_p
+        if self.alpha == 1.0:
+            self.x += r  # (2) with alpha = 1
+        else:
+            self.x += self.alpha * r  # (2)
+        e2 = r * r
+        e2 = e2[:, 0] + e2[:, 1]
+        if self._any_coasting:
+            # The residual built up over the coasted frames plus this one.
+            r /= (self._coast + 1)[:, None]
+        r *= self.beta / self.dt
+        self.v += r  # (3)
+        s = self.residual_smoothing
+        if has is None:
+            self.res2 *= 1.0 - s
+            e2 *= s
+            self.res2 += e2
+        else:
+            self.res2 += np.where(has, s * (e2 - self.res2), 0.0)
+
+    def _restart(self, mask: np.ndarray, xy: np.ndarray) -> None:
+        self.x[mask] = xy[mask]
+        self.v[mask] = 0.0
+        self.res2[mask] = self.initial_residual_px**2
+
+    def _drop_velocity(self, mask: np.ndarray) -> None:
+        self.v[mask] = 0.0
+
+    @property
+    def x_est(self) -> np.ndarray:
+        """(M, 2) float: smoothed position ``x_s`` in pixels."""
+        return self.x
