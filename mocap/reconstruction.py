@@ -16,13 +16,20 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from mocap.calibration import Calibration
 from mocap.smoothing import butterworth_filtfilt, fill_gaps, rts_smooth
-from mocap.triangulation import epipolar_distances, normalized_coordinates, triangulate
-from mocap.types import Trajectories, Tracks2D
+from mocap.triangulation import (
+    epipolar_distances,
+    normalized_coordinates,
+    project_normalized,
+    triangulate,
+    triangulate_normalized,
+)
+from mocap.types import Detections, Trajectories, Tracks2D
 
-__all__ = ["ReconstructionParams", "reconstruct", "epipolar_keep_mask", "calibration_for_cameras"]
+__all__ = ["ReconstructionParams", "reconstruct", "relabel_views", "epipolar_keep_mask", "calibration_for_cameras"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +68,14 @@ class ReconstructionParams:
         interpolating spline through noisy points amplifies their noise in the gap).
     gap_context_frames : int
         Valid frames on each side of a gap used to fit the spline.
+    relabel_gate_px : float or None
+        3D-guided correction of the 2D labels before triangulation (see
+        :func:`relabel_views`): a camera's observation is re-assigned to the label whose
+        point, triangulated from the other cameras, projects within this many pixels.
+        None: ``1.5 * max_residual_px`` (both scale with the detection noise); 0
+        disables it (labels are then taken as the trackers give them).
+    relabel_sweeps : int
+        Correction sweeps per frame.
     """
 
     epipolar_threshold_px: float = 4.0
@@ -77,6 +92,8 @@ class ReconstructionParams:
     max_gap_frames: int = 10
     gap_fill: Literal["auto", "cubic", "lsq"] = "auto"
     gap_context_frames: int = 10
+    relabel_gate_px: float | None = None
+    relabel_sweeps: int = 2
 
     def __post_init__(self) -> None:
         def need(cond: bool, field: str, value, fix: str) -> None:
@@ -96,6 +113,8 @@ class ReconstructionParams:
         need(self.max_gap_frames >= 0, "max_gap_frames", self.max_gap_frames, "must be >= 0 frames")
         need(self.gap_fill in ("auto", "cubic", "lsq"), "gap_fill", self.gap_fill, "use 'auto', 'cubic' or 'lsq'")
         need(self.gap_context_frames >= 1, "gap_context_frames", self.gap_context_frames, "must be >= 1 frame")
+        need(self.relabel_gate_px is None or self.relabel_gate_px >= 0, "relabel_gate_px", self.relabel_gate_px, "must be None or >= 0 pixels (0 disables)")
+        need(self.relabel_sweeps >= 1, "relabel_sweeps", self.relabel_sweeps, "must be >= 1")
 
 
 def calibration_for_cameras(camera_names: list[str], calibration: Calibration) -> Calibration:
@@ -149,11 +168,223 @@ def epipolar_keep_mask(xy_norm: np.ndarray, calibration: Calibration, threshold_
     return finite & (support >= 1) & (support >= s_max - 1)
 
 
+def _reassign(pred: np.ndarray, cur: np.ndarray, cand: np.ndarray, gate_px: float) -> np.ndarray:
+    """One camera, one frame: which candidate each label takes.
+
+    Parameters
+    ----------
+    pred : (M, 2) float
+        Labels' predicted positions (pixels, NaN where no prediction).
+    cur : (M,) int
+        Each label's current candidate index (-1 none).
+    cand : (n, 2) float
+        Candidate observations (pixels, same frame as ``pred``).
+    gate_px : float
+
+    Returns
+    -------
+    (M,) int
+        Candidate index per label, -1 for none. Predicted labels are assigned by the
+        Hungarian method within the gate (leaving one unassigned costs ``gate_px^2``);
+        the others keep their current candidate unless a predicted label claimed it.
+    """
+    out = np.full(len(cur), -1)
+    has = np.isfinite(pred).all(axis=1)
+    claimed = np.zeros(len(cand), dtype=bool)
+    if has.any() and len(cand):
+        d2 = ((pred[has, None, :] - cand[None, :, :]) ** 2).sum(axis=2)
+        g2 = gate_px**2
+        big = 1e6 * g2
+        d2 = np.where(d2 < g2, d2, big)
+        k = int(has.sum())
+        dummy = np.full((k, k), big)
+        np.fill_diagonal(dummy, g2)
+        rows, cols = linear_sum_assignment(np.hstack([d2, dummy]))
+        real = cols < len(cand)
+        idx = np.flatnonzero(has)
+        out[idx[rows[real]]] = cols[real]
+        claimed[cols[real]] = True
+    keep = ~has & (cur >= 0)
+    keep[keep] = ~claimed[cur[keep]]
+    out[keep] = cur[keep]
+    return out
+
+
+def _candidates(
+    raw: np.ndarray, detections: list[list[Detections]] | None, cal: Calibration
+) -> tuple[list[list[np.ndarray]], list[list[np.ndarray]], np.ndarray]:
+    """Per camera and frame, the candidate observations (distorted and normalised) and,
+    per tracker label, its candidate index.
+
+    Candidates are the tracker's observations plus, if given, all detections (exact
+    duplicates merged). Returns ``cand_px[c][f]`` (n, 2) distorted pixels,
+    ``cand_n[c][f]`` (n, 2) normalised coordinates and ``tracker_idx`` (F, C, M).
+    """
+    F, C, M, _ = raw.shape
+    cand_px: list[list[np.ndarray]] = [[None] * F for _ in range(C)]
+    cand_n: list[list[np.ndarray]] = [[None] * F for _ in range(C)]
+    tracker_idx = np.full((F, C, M), -1)
+    for c in range(C):
+        per_frame = []
+        for f in range(F):
+            have = np.isfinite(raw[f, c]).all(axis=1)
+            pts = raw[f, c, have]
+            if detections is not None and len(detections[c][f]):
+                pts = np.vstack([pts, detections[c][f].xy])
+            if len(pts):
+                uniq, inv = np.unique(pts, axis=0, return_inverse=True)
+                tracker_idx[f, c, np.flatnonzero(have)] = inv.ravel()[: have.sum()]
+            else:
+                uniq = np.zeros((0, 2))
+            per_frame.append(uniq)
+        # One undistortion call per camera for all frames' candidates.
+        sizes = [len(u) for u in per_frame]
+        flat = np.vstack(per_frame) if sum(sizes) else np.zeros((0, 2))
+        norm = normalized_coordinates(np.broadcast_to(flat, (1,) + flat.shape), Calibration((cal[c],)))[0] if len(flat) else flat
+        for f, part_px, part_n in zip(range(F), per_frame, np.split(norm, np.cumsum(sizes)[:-1])):
+            cand_px[c][f] = part_px
+            cand_n[c][f] = part_n
+    return cand_px, cand_n, tracker_idx
+
+
+def relabel_views(
+    tracks: Tracks2D,
+    calibration: Calibration,
+    gate_px: float = 3.0,
+    max_residual_px: float = 2.0,
+    detections: list[list[Detections]] | None = None,
+    sweeps: int = 2,
+    max_coast_frames: int = 10,
+) -> Tracks2D:
+    """Correct the 2D labels of each camera with the 3D points seen by the others.
+
+    A 2D tracker can swap two labels or let a hidden marker's label take a neighbour's
+    blob. Frame by frame, each label is triangulated from all cameras but ``c``
+    (robustly: one wrong view among them is rejected) and projected into ``c``; the
+    observations of ``c`` are re-assigned to the labels whose projections they match
+    (Hungarian assignment within ``gate_px``). A label no other camera can triangulate
+    is predicted from its own recent 3D motion (constant velocity, up to
+    ``max_coast_frames`` frames), which also re-acquires labels the trackers lost
+    everywhere when the raw ``detections`` are given.
+
+    Corrections are remembered as a mapping from each camera's tracker labels to
+    labels (or to "unknown" when the observation was found inconsistent) and carried to
+    the next frames, so that errors made by different cameras at different times do
+    not add up to a wrong majority.
+
+    Frames are processed in order (the mapping and motion are sequential); within a
+    frame all cameras are checked at once (one batched triangulation per sweep), in
+    undistorted coordinates computed once for the whole sequence.
+
+    Parameters
+    ----------
+    tracks : Tracks2D
+        ``xy`` (F, C, M, 2) distorted pixels.
+    calibration : Calibration
+    gate_px : float
+        Largest distance between an observation and a label's projection, pixels.
+    max_residual_px : float
+        Outlier threshold of the triangulations, pixels.
+    detections : C lists of F Detections, optional
+        All detections of every camera and frame (tracks' camera order); default: the
+        observations present in ``tracks``.
+    sweeps : int
+        Correction sweeps per frame (a sweep uses the previous sweep's labels).
+    max_coast_frames : int
+        How long a label's own 3D motion may predict it once no camera pair sees it.
+
+    Returns
+    -------
+    Tracks2D
+        Same labels and cameras; ``xy`` corrected; ``status`` is 1 where an observation
+        is assigned, else the tracker's coasting status or 0.
+    """
+    cal = calibration_for_cameras(list(tracks.camera_names), calibration)
+    raw = np.asarray(tracks.xy, dtype=np.float64)
+    F, C, M, _ = raw.shape
+    if detections is not None and (len(detections) != C or any(len(d) != F for d in detections)):
+        raise ValueError(f"detections must be {C} lists (one per camera) of {F} frames")
+    cand_px, cand_n, tracker_idx = _candidates(raw, detections, cal)
+    focal = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in cal])
+    out = np.full_like(raw, np.nan)
+    mapping = np.tile(np.arange(M), (C, 1))        # camera c's tracker label a -> label (-1: unknown)
+    cams = np.arange(C)
+    last = np.full((M, 3), np.nan)                  # last triangulated point of each label
+    vel = np.zeros((M, 3))                          # its velocity, metres per frame
+    last_f = np.full(M, -(10**9))
+    for f in range(F):
+        cur = np.full((C, M), -1)                   # candidate index of each label
+        for c in range(C):
+            a = np.flatnonzero((tracker_idx[f, c] >= 0) & (mapping[c] >= 0))
+            cur[c, mapping[c, a]] = tracker_idx[f, c, a]
+        age = f - last_f
+        moving = (age <= max_coast_frames) & np.isfinite(last).all(axis=1)
+        coast = np.where(moving[:, None], last + vel * age[:, None], np.nan)
+
+        def observed(idx: np.ndarray) -> np.ndarray:
+            xy = np.full((C, M, 2), np.nan)
+            for c in range(C):
+                ok = idx[c] >= 0
+                xy[c, ok] = cand_n[c][f][idx[c, ok]]
+            return xy
+
+        for _ in range(sweeps):
+            xy = observed(cur)
+            # Blocks 0..C-1 leave one camera out; block C uses them all.
+            blocks = np.repeat(xy[None], C + 1, axis=0)             # (C + 1, C, M, 2)
+            blocks[cams, cams] = np.nan
+            tri = triangulate_normalized(blocks.transpose(1, 0, 2, 3).reshape(C, (C + 1) * M, 2), cal,
+                                         max_residual_px=max_residual_px, refine=False)
+            pts = tri.points.reshape(C + 1, M, 3)
+            # A label's own motion only proposes an observation where it has none; it
+            # never vetoes one (a coasting prediction drifts, the other views do not).
+            from_motion = ~np.isfinite(pts[:C]).all(axis=2) & (cur < 0)        # (C, M)
+            loo = np.where(from_motion[..., None], coast[None], pts[:C])
+            new = cur.copy()
+            for c in range(C):
+                pred = project_normalized(loo[c], Calibration((cal[c],)))[0] * focal[c]
+                here = np.where((cur[c] >= 0)[:, None], cand_n[c][f][np.maximum(cur[c], 0)] * focal[c], np.nan) if len(cand_n[c][f]) else np.full((M, 2), np.nan)
+                with np.errstate(invalid="ignore"):
+                    ok = np.linalg.norm(here - pred, axis=1) <= gate_px
+                if not (np.isfinite(pred).all(axis=1) & ~ok).any():
+                    continue  # every predicted label already at its observation
+                new[c] = _reassign(pred, cur[c], cand_n[c][f] * focal[c], gate_px)
+            if np.array_equal(new, cur):
+                break
+            cur = new
+        else:
+            pts = None  # the last sweep changed labels: the all-camera block is stale
+        for c in range(C):
+            ok = cur[c] >= 0
+            out[f, c, ok] = cand_px[c][f][cur[c, ok]]
+            # Remember which label each tracker label's observation now belongs to.
+            a = np.flatnonzero(tracker_idx[f, c] >= 0)
+            if a.size:
+                same = tracker_idx[f, c, a][:, None] == cur[c][None, :]         # (a, M)
+                mapping[c, a] = np.where(same.any(axis=1), np.argmax(same, axis=1), -1)
+        # Each label's own 3D motion, for the frames when no camera pair sees it.
+        if pts is None:
+            now = triangulate_normalized(observed(cur), cal, max_residual_px=max_residual_px, refine=False).points
+        else:
+            now = pts[C]
+        seen = np.isfinite(now).all(axis=1)
+        recent = seen & (f - last_f <= max_coast_frames) & np.isfinite(last).all(axis=1)
+        vel[recent] = (now[recent] - last[recent]) / (f - last_f[recent])[:, None]
+        vel[seen & ~recent] = 0.0
+        last[seen] = now[seen]
+        last_f[seen] = f
+    status = np.asarray(tracks.status).copy() if tracks.status is not None else np.zeros((F, C, M), np.int8)
+    measured = np.isfinite(out).all(axis=3)
+    status = np.where(measured, Tracks2D.TRACKED, np.where(status == Tracks2D.TRACKED, 0, status)).astype(np.int8)
+    return Tracks2D(list(tracks.labels), out, tracks.predicted_xy, status, list(tracks.camera_names))
+
+
 def reconstruct(
     tracks: Tracks2D,
     calibration: Calibration,
     params: ReconstructionParams | None = None,
     times: np.ndarray | None = None,
+    detections: list[list[Detections]] | None = None,
 ) -> Trajectories:
     """Triangulate labelled 2D tracks into 3D trajectories.
 
@@ -166,6 +397,9 @@ def reconstruct(
     params : ReconstructionParams, optional
     times : (F,) float
         Frame timestamps in seconds (needed for smoothing and gap filling).
+    detections : C lists of F Detections, optional
+        All detections (tracks' camera order): lets the 3D-guided label correction
+        (:func:`relabel_views`) recover observations the trackers missed.
 
     Returns
     -------
@@ -188,6 +422,10 @@ def reconstruct(
     if t.shape[0] != F:
         raise ValueError(f"times has {t.shape[0]} entries but tracks have {F} frames")
     cal = calibration_for_cameras(list(tracks.camera_names), calibration)
+    gate = 1.5 * params.max_residual_px if params.relabel_gate_px is None else params.relabel_gate_px
+    if gate > 0 and np.isfinite(gate) and C >= 3:
+        tracks = relabel_views(tracks, cal, gate, params.max_residual_px, detections, params.relabel_sweeps)
+        xy = tracks.xy
 
     p2ds = xy.transpose(1, 0, 2, 3).reshape(C, F * M, 2).copy()
     weights = np.isfinite(p2ds).all(axis=2).astype(np.float64)

@@ -9,8 +9,9 @@ NaN where a camera did not see the point, ``p3ds`` is ``(N, 3)`` metres (world f
   distorted pixels, using OpenCV's projection Jacobian.
 * :func:`reprojection_residuals` -- ``(C, N)`` pixel distances.
 * :func:`triangulate` -- DLT + refinement + outlier rejection: while a point's worst
-  residual exceeds a threshold, drop that camera and retry, as long as at least
+  residual exceeds a threshold, drop the worst camera and retry, as long as at least
   ``min_views`` views remain; otherwise the point is rejected (NaN).
+  :func:`triangulate_normalized` does the same on already undistorted coordinates.
 * :func:`epipolar_distances` -- symmetric point-to-epipolar-line distances per camera
   pair, for correspondence checks.
 """
@@ -30,6 +31,9 @@ __all__ = [
     "refine_points",
     "reprojection_residuals",
     "triangulate",
+    "triangulate_normalized",
+    "project_normalized",
+    "normalized_residuals",
     "epipolar_distances",
 ]
 
@@ -108,15 +112,14 @@ def _dlt_normalized(xy: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> np.ndarray
     pts = np.full((N, 3), np.nan)
     ok = (w > 0).sum(axis=0) >= 2
     if ok.any():
-        # The homogeneous point is the null vector of each (2C, 4) system: the eigenvector
-        # of the smallest eigenvalue of A^T A (4x4, batched eigh is ~3x faster than a
-        # batched SVD of A and, in metres and normalised coordinates, as accurate).
+        # Inhomogeneous DLT (point = (X, 1)): least squares on the normal equations,
+        # batched 3x3 solves, ~10x faster than a batched eigh/SVD of the 4x4 system
+        # and, in metres and normalised coordinates, as accurate (exact data give the
+        # point to ~1e-15 m). A tiny ridge keeps near-parallel rays solvable.
         Ak = A[ok]
-        _, vecs = np.linalg.eigh(np.matmul(Ak.transpose(0, 2, 1), Ak))
-        h = vecs[:, :, 0]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            X = h[:, :3] / h[:, 3:4]
-        X[np.abs(h[:, 3]) < 1e-12] = np.nan
+        Mk = np.matmul(Ak.transpose(0, 2, 1), Ak)
+        lhs = Mk[:, :3, :3] + 1e-12 * np.trace(Mk[:, :3, :3], axis1=1, axis2=2)[:, None, None] * np.eye(3)
+        X = np.linalg.solve(lhs, -Mk[:, :3, 3:4])[..., 0]
         pts[ok] = X
     return pts
 
@@ -199,7 +202,7 @@ def _refine_normalized(
     obs = np.nan_to_num(xy[:, ok])
     wk = w[:, ok]
     Xk = X[ok]
-    f = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in calibration])
+    f = _focal(calibration)
     for _ in range(iterations):
         JTJ = np.zeros((len(Xk), 3, 3))
         JTr = np.zeros((len(Xk), 3))
@@ -253,9 +256,10 @@ def triangulate(
     """Robust triangulation: DLT, refinement, and worst-camera rejection.
 
     For every point whose largest reprojection residual exceeds ``max_residual_px``, the
-    camera with that residual is dropped and the point re-triangulated, while more than
-    ``min_views`` views remain. A point still above the threshold with only ``min_views``
-    views is rejected (NaN): with two views one cannot tell which one is wrong.
+    camera whose removal leaves the smallest worst residual is dropped and the point
+    re-triangulated, while more than ``min_views`` views remain. A point still above the
+    threshold with only ``min_views`` views is rejected (NaN): with two views one cannot
+    tell which one is wrong.
 
     Parameters
     ----------
@@ -276,15 +280,79 @@ def triangulate(
     Returns
     -------
     TriangulationResult
+        Residuals in distorted pixels (exact reprojection through the lens model).
     """
+    p = _check_p2ds(p2ds, calibration)
+    w = _check_weights(weights, p)
+    xy = normalized_coordinates(p, calibration)
+    return _robust(xy, w, calibration, lambda X, idx: reprojection_residuals(X, p[:, idx], calibration),
+                   max_residual_px, refine, iterations, min_views)
+
+
+def triangulate_normalized(
+    xy: np.ndarray,
+    calibration: Calibration,
+    weights: np.ndarray | None = None,
+    max_residual_px: float = 2.0,
+    refine: bool = True,
+    iterations: int = 3,
+    min_views: int = 2,
+) -> TriangulationResult:
+    """:func:`triangulate` on undistorted normalised coordinates (no lens model calls).
+
+    For callers that triangulate the same observations many times (e.g. frame-by-frame
+    label checks): undistort once with :func:`normalized_coordinates`, then call this.
+    Residuals are in *undistorted* pixels (normalised error times the focal length),
+    which for webcam-like distortion differ from distorted pixels by a few percent.
+
+    Parameters
+    ----------
+    xy : (C, N, 2) float
+        Undistorted normalised coordinates, NaN where missing.
+    calibration, weights, max_residual_px, refine, iterations, min_views
+        As :func:`triangulate`.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    if xy.ndim != 3 or xy.shape[2] != 2 or xy.shape[0] != len(calibration):
+        raise ValueError(f"xy must be (C, N, 2) with C = {len(calibration)} cameras, got shape {xy.shape}")
+    w = _check_weights(weights, xy)
+    return _robust(xy, w, calibration, lambda X, idx: normalized_residuals(X, xy[:, idx], calibration),
+                   max_residual_px, refine, iterations, min_views)
+
+
+def project_normalized(p3ds: np.ndarray, calibration: Calibration) -> np.ndarray:
+    """World points ``(N, 3)`` to undistorted normalised coordinates ``(C, N, 2)``.
+
+    NaN for points behind a camera or NaN input.
+    """
+    X = np.asarray(p3ds, dtype=np.float64).reshape(-1, 3)
+    out = np.empty((len(calibration), len(X), 2))
+    for c, cam in enumerate(calibration):
+        pc = X @ cam.R.T + cam.t
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[c] = np.where(pc[:, 2:3] > 0, pc[:, :2] / pc[:, 2:3], np.nan)
+    return out
+
+
+def _focal(calibration: Calibration) -> np.ndarray:
+    return np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in calibration])
+
+
+def normalized_residuals(p3ds: np.ndarray, xy: np.ndarray, calibration: Calibration) -> np.ndarray:
+    """``(C, N)`` residuals in undistorted pixels: ``f * |projection - xy|`` (normalised ``xy``)."""
+    return np.linalg.norm(project_normalized(p3ds, calibration) - xy, axis=2) * _focal(calibration)[:, None]
+
+
+def _robust(
+    xy: np.ndarray, w: np.ndarray, calibration: Calibration, residual_fn,
+    max_residual_px: float, refine: bool, iterations: int, min_views: int,
+) -> TriangulationResult:
+    """DLT (+ refinement) with worst-camera rejection; ``residual_fn(X, idx) -> (C, n)``."""
     if min_views < 2:
         raise ValueError(f"min_views={min_views}: triangulation needs at least 2 views")
     if not max_residual_px > 0:
         raise ValueError(f"max_residual_px={max_residual_px} must be > 0 (use inf to disable rejection)")
-    p = _check_p2ds(p2ds, calibration)
-    w = _check_weights(weights, p)
     C, N = w.shape
-    xy = normalized_coordinates(p, calibration)
     Ps = _extrinsics(calibration)
     used = w > 0
     used[:, used.sum(axis=0) < min_views] = False
@@ -298,7 +366,7 @@ def triangulate(
         X = _dlt_normalized(xy[:, idx], Ps, wk)
         if refine:
             X = _refine_normalized(X, xy[:, idx], calibration, wk, iterations)
-        res = reprojection_residuals(X, p[:, idx], calibration)
+        res = residual_fn(X, idx)
         res[~use] = np.nan
         return X, res
 

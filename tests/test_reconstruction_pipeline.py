@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mocap.calibration import Calibration, Camera
-from mocap.reconstruction import ReconstructionParams, reconstruct
-from mocap.types import Tracks2D
+from mocap.reconstruction import ReconstructionParams, reconstruct, relabel_views
+from mocap.types import Detections, Tracks2D
 
 RATE = 100.0
 F, M = 150, 8
@@ -72,9 +72,13 @@ def test_reconstruct_with_occlusion_swaps_and_gaps() -> None:
     assert traj.xyz.shape == (F, M, 3) and traj.labels == tracks.labels
     measured = ~traj.filled & np.isfinite(traj.xyz).all(axis=2)
     assert rmse(traj.xyz[measured], xyz[measured]) < 0.0011
-    # The swapped views are dropped (epipolar check), the others give the point.
-    assert np.all(traj.n_views[70:80, :2] == 3)
+    # The swap is undone by the 3D-guided label correction: all four views used.
+    assert np.all(traj.n_views[70:80, :2] == 4)
     assert rmse(traj.xyz[70:80, :2], xyz[70:80, :2]) < 0.0012
+    # Without it, the epipolar check drops the swapped view; the others give the point.
+    plain = reconstruct(tracks, cal, ReconstructionParams(max_gap_frames=10, relabel_gate_px=0.0), t)
+    assert np.all(plain.n_views[70:80, :2] == 3)
+    assert rmse(plain.xyz[70:80, :2], xyz[70:80, :2]) < 0.0012
     assert np.all(traj.n_views[20:60, 3] == 2)
     assert rmse(traj.xyz[20:60, 3], xyz[20:60, 3]) < 0.002
     # Short gap filled and flagged; long gap left NaN; nothing else filled.
@@ -133,6 +137,44 @@ def test_coasting_predictions_only_when_asked() -> None:
     on = reconstruct(tracks, cal, ReconstructionParams(max_gap_frames=0, coasting_weight=0.5), t)
     assert np.all(on.n_views[50:60, 5] == 2)
     assert rmse(on.xyz[50:60, 5], xyz[50:60, 5]) < 0.002
+
+
+def test_relabelling_undoes_swaps_that_become_a_majority() -> None:
+    """Labels 0 and 1 swap in camera 0 at frame 20, camera 1 at frame 60 and camera 2 at
+    frame 100, for good: from frame 100 three of four cameras are wrong. Each swap is
+    caught while it is a minority and the correction is carried forward."""
+    rng = np.random.default_rng(4)
+    cal = ring_rig()
+    t, xyz = motion(rng)
+    tracks = make_tracks(cal, xyz, rng, noise_px=0.1)
+    for cam, start in ((0, 20), (1, 60), (2, 100)):
+        tracks.xy[start:, cam, [0, 1]] = tracks.xy[start:, cam, [1, 0]]
+    fixed = relabel_views(tracks, cal, gate_px=3.0, max_residual_px=2.0)
+    truth = make_tracks(cal, xyz, np.random.default_rng(4), noise_px=0.0).xy
+    assert np.abs(fixed.xy - truth).max() < 1.0          # every view back on its marker
+    traj = reconstruct(tracks, cal, ReconstructionParams(), t)
+    assert rmse(traj.xyz[:, :2], xyz[:, :2]) < 0.0012
+    # Without the correction the labels follow the wrong majority after frame 100.
+    plain = reconstruct(tracks, cal, ReconstructionParams(relabel_gate_px=0.0), t)
+    assert np.nanmin(np.linalg.norm(plain.xyz[110:, 0] - xyz[110:, 0], axis=1)) > 0.05
+
+
+def test_relabelling_recovers_lost_labels_from_detections() -> None:
+    """The trackers of cameras 0-2 lose label 2 at frame 30; the raw detections still
+    hold its blob. From its 3D motion and the one camera still tracking it, the label
+    is picked up again in every camera."""
+    rng = np.random.default_rng(5)
+    cal = ring_rig()
+    t, xyz = motion(rng)
+    tracks = make_tracks(cal, xyz, rng, noise_px=0.1)
+    detections = [[Detections.from_points(tracks.xy[f, c][rng.permutation(M)]) for f in range(F)] for c in range(4)]
+    tracks.xy[30:, :3, 2] = np.nan
+    tracks.status[30:, :3, 2] = 0
+    blind = reconstruct(tracks, cal, ReconstructionParams(max_gap_frames=0), t)
+    assert np.isnan(blind.xyz[30:, 2]).all()
+    found = reconstruct(tracks, cal, ReconstructionParams(max_gap_frames=0), t, detections=detections)
+    assert np.all(found.n_views[30:, 2] == 4)
+    assert rmse(found.xyz[:, 2], xyz[:, 2]) < 0.0012
 
 
 def test_params_validation() -> None:
