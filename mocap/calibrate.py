@@ -243,6 +243,103 @@ def _resolve_view(floor_view: int | str, obs: BoardObservations) -> int:
                            f"(e.g. {obs.view_labels[0][0]!r})")
 
 
+def _detection_rejections(obs: BoardObservations, usable: np.ndarray,
+                          detections: Mapping[str, Sequence[BoardDetection]] | None) -> dict[str, dict[str, str]]:
+    """Per camera: label -> why the view has no usable board."""
+    rejected: dict[str, dict[str, str]] = {n: {} for n in obs.camera_names}
+    for c, n in enumerate(obs.camera_names):
+        dl = detections.get(n) if detections is not None else None
+        for v in np.flatnonzero(~usable[c]):
+            if dl is not None and not dl[v].found:
+                rejected[n][obs.view_labels[c][v]] = f"{dl[v].problem}: {dl[v].detail}"
+            else:
+                rejected[n][obs.view_labels[c][v]] = f"board not found ({int(obs.seen[c, v].sum())} corners)"
+    return rejected
+
+
+def _intrinsics_per_camera(obs: BoardObservations, usable: np.ndarray, iopt: IntrinsicsOptions,
+                           known: Calibration | None, detections: Mapping[str, Sequence[BoardDetection]] | None,
+                           rejected: dict[str, dict[str, str]]):
+    """Zhang per camera (or the known intrinsics).
+
+    Returns ``intr (C, 9)``, ``k3_free (C,)``, ``zhang_rms {name: px}`` and ``use (C, V)``
+    (views kept); ``rejected`` gains the outlier views.
+    """
+    C = obs.n_cameras
+    intr = np.zeros((C, 9))
+    k3_free = np.zeros(C, dtype=bool)
+    zhang_rms: dict[str, float] = {}
+    use = usable.copy()
+    for c, n in enumerate(obs.camera_names):
+        if known is not None and n in known.names:
+            cam = known[n]
+            intr[c] = intrinsics_vector(cam.K, cam.dist)
+            k3_free[c] = bool(cam.dist[4] != 0)
+            zhang_rms[n] = float("nan")
+            continue
+        if usable[c].sum() < iopt.min_views:
+            dl = detections.get(n) if detections is not None else None
+            failures = []
+            for v in np.flatnonzero(~usable[c]):
+                if dl is not None and not dl[v].found:
+                    failures.append(ViewFailure(obs.view_labels[c][v], dl[v].problem, dl[v].detail, dl[v].fix))
+                else:
+                    failures.append(ViewFailure(obs.view_labels[c][v], "not found",
+                                                f"{int(obs.seen[c, v].sum())} of {obs.board.n_corners} corners seen"))
+            raise BoardNotFoundError(n, int(usable[c].sum()), obs.n_views, iopt.min_views, failures, obs.board.describe())
+        res = calibrate_intrinsics(obs.corners_px[c], obs.object_points, obs.image_sizes[c], n, iopt,
+                                   obs.view_labels[c], obs.board.kind == "checkerboard")
+        intr[c] = intrinsics_vector(res.K, res.dist)
+        k3_free[c] = res.k3_free
+        zhang_rms[n] = res.rms_px
+        use[c] &= res.used
+        for v, why in res.rejected.items():
+            rejected[n][obs.view_labels[c][v]] = why
+    return intr, k3_free, zhang_rms, use
+
+
+def _initial_extrinsics(poses, names: list[str], ref: int, intr: np.ndarray, wand: WandSpec | None,
+                        wand_px: np.ndarray | None):
+    """First guess of ``R_cw, t_cw (C, ...)`` and ``R_wb, t_wb (V, ...)`` in the reference camera's frame.
+
+    Board views shared between cameras first; if they leave cameras unconnected, the
+    wand (when given) places the cameras and each board view is placed by a camera that
+    saw it.
+    """
+    C, V = poses.valid.shape
+    if C == 1:
+        ok = poses.valid[0]
+        return (np.eye(3)[None], np.zeros((1, 3)),
+                np.where(ok[:, None, None], poses.R[0], np.nan), np.where(ok[:, None], poses.t[0], np.nan))
+    try:
+        rig = initial_rig(poses, names, ref)
+        return rig.R_cw, rig.t_cw, rig.R_wb, rig.t_wb
+    except DisconnectedCamerasError:
+        if wand_px is None:
+            raise
+    R_cw, t_cw, _ = wand_initial_rig(intr, wand_px, wand, names, ref)
+    R_wb = np.full((V, 3, 3), np.nan)
+    t_wb = np.full((V, 3), np.nan)
+    for v in range(V):
+        cams = np.flatnonzero(poses.valid[:, v])
+        if len(cams):
+            c0 = cams[0]
+            R_wb[v] = R_cw[c0].T @ poses.R[c0, v]
+            t_wb[v] = R_cw[c0].T @ (poses.t[c0, v] - t_cw[c0])
+    return R_cw, t_cw, R_wb, t_wb
+
+
+def _single_camera_view_rms(obs: BoardObservations, poses, intr: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Per-view reprojection RMS ``(V,)`` of a lone camera at its PnP board poses."""
+    out = np.full(obs.n_views, np.nan)
+    K, d = intrinsics_from_vector(intr)
+    for v in np.flatnonzero(use):
+        ok = np.isfinite(obs.corners_px[0, v]).all(axis=1)
+        proj, _ = cv2.projectPoints(obs.object_points[ok], cv2.Rodrigues(poses.R[0, v])[0], poses.t[0, v], K, d)
+        out[v] = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - obs.corners_px[0, v, ok]) ** 2, axis=1)))
+    return out
+
+
 def calibrate_from_observations(observations: BoardObservations, *, wand: WandSpec | None = None,
                                 wand_observations: WandObservations | None = None,
                                 known_intrinsics: Calibration | None = None,
@@ -289,82 +386,25 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
     floor_index = _resolve_view(floor_view, obs) if floor_view is not None else None  # fail before the work
     if world_camera is not None:
         obs.camera_index(world_camera)
-    obj = obs.object_points
-    usable = obs.usable(iopt.min_corners)
-    rejected: dict[str, dict[str, str]] = {n: {} for n in names}
-    for c, n in enumerate(names):
-        dl = detections.get(n) if detections is not None else None
-        for v in np.flatnonzero(~usable[c]):
-            if dl is not None and not dl[v].found:
-                rejected[n][obs.view_labels[c][v]] = f"{dl[v].problem}: {dl[v].detail}"
-            else:
-                rejected[n][obs.view_labels[c][v]] = f"board not found ({int(obs.seen[c, v].sum())} corners)"
-
-    # 1. intrinsics -------------------------------------------------------------
-    intr = np.zeros((C, 9))
-    k3_free = np.zeros(C, dtype=bool)
-    zhang_rms = {}
-    use = usable.copy()
-    for c, n in enumerate(names):
-        if known_intrinsics is not None and n in known_intrinsics.names:
-            cam = known_intrinsics[n]
-            intr[c] = intrinsics_vector(cam.K, cam.dist)
-            k3_free[c] = bool(cam.dist[4] != 0)
-            zhang_rms[n] = float("nan")
-            continue
-        if usable[c].sum() < iopt.min_views:
-            failures = []
-            dl = detections.get(n) if detections is not None else None
-            for v in np.flatnonzero(~usable[c]):
-                if dl is not None and not dl[v].found:
-                    failures.append(ViewFailure(obs.view_labels[c][v], dl[v].problem, dl[v].detail, dl[v].fix))
-                else:
-                    failures.append(ViewFailure(obs.view_labels[c][v], "not found",
-                                                f"{int(obs.seen[c, v].sum())} of {obs.board.n_corners} corners seen"))
-            raise BoardNotFoundError(n, int(usable[c].sum()), V, iopt.min_views, failures, obs.board.describe())
-        res = calibrate_intrinsics(obs.corners_px[c], obj, obs.image_sizes[c], n, iopt, obs.view_labels[c],
-                                   obs.board.kind == "checkerboard")
-        intr[c] = intrinsics_vector(res.K, res.dist)
-        k3_free[c] = res.k3_free
-        zhang_rms[n] = res.rms_px
-        use[c] &= res.used
-        for v, why in res.rejected.items():
-            rejected[n][obs.view_labels[c][v]] = why
-
-    Ks = np.stack([intrinsics_from_vector(p)[0] for p in intr])
-    dists = np.stack([intrinsics_from_vector(p)[1] for p in intr])
-    poses = board_poses_pnp(obs.corners_px, obj, Ks, dists, use)
-    use &= poses.valid
-
-    # 2. extrinsics ----------------------------------------------------------------
     wand_px = None
     if wand is not None and wand_observations is not None:
         wand_px = wand_observations.reordered(names).markers_px
     elif (wand is None) != (wand_observations is None):
         raise CalibrationError("wand refinement needs both the wand's distances (WandSpec / --wand-distances-mm) and its "
                                "2D marker observations (--wand-file)")
-    if C == 1:
-        R_cw, t_cw = np.eye(3)[None], np.zeros((1, 3))
-        v_ok = poses.valid[0]
-        R_wb = np.where(v_ok[:, None, None], poses.R[0], np.nan)
-        t_wb = np.where(v_ok[:, None], poses.t[0], np.nan)
-    else:
-        try:
-            rig = initial_rig(poses, names, ref)
-            R_cw, t_cw, R_wb, t_wb = rig.R_cw, rig.t_cw, rig.R_wb, rig.t_wb
-        except DisconnectedCamerasError:
-            if wand_px is None:
-                raise
-            R_cw, t_cw, _ = wand_initial_rig(intr, wand_px, wand, names, ref)
-            # Board poses from any camera that saw the board (now that cameras are placed).
-            R_wb = np.full((V, 3, 3), np.nan)
-            t_wb = np.full((V, 3), np.nan)
-            for v in range(V):
-                cams = np.flatnonzero(poses.valid[:, v])
-                if len(cams):
-                    c0 = cams[0]
-                    R_wb[v] = R_cw[c0].T @ poses.R[c0, v]
-                    t_wb[v] = R_cw[c0].T @ (poses.t[c0, v] - t_cw[c0])
+    obj = obs.object_points
+    usable = obs.usable(iopt.min_corners)
+    rejected = _detection_rejections(obs, usable, detections)
+
+    # 1. intrinsics -------------------------------------------------------------
+    intr, k3_free, zhang_rms, use = _intrinsics_per_camera(obs, usable, iopt, known_intrinsics, detections, rejected)
+    Ks = np.stack([intrinsics_from_vector(p)[0] for p in intr])
+    dists = np.stack([intrinsics_from_vector(p)[1] for p in intr])
+    poses = board_poses_pnp(obs.corners_px, obj, Ks, dists, use)
+    use &= poses.valid
+
+    # 2. extrinsics ----------------------------------------------------------------
+    R_cw, t_cw, R_wb, t_wb = _initial_extrinsics(poses, names, ref, intr, wand, wand_px)
 
     # 3. bundle adjustment -----------------------------------------------------------
     wand_pts = None
@@ -389,21 +429,15 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
         ba_info = dict(cost=ba.cost, initial_cost=ba.initial_cost, evaluations=ba.evaluations, status=ba.status,
                        message=ba.message, n_parameters=ba.n_parameters, n_residuals=ba.n_residuals)
     else:
-        c = 0
-        res_views = np.full(V, np.nan)
-        K, d = intrinsics_from_vector(intr[0])
-        for v in np.flatnonzero(use[0]):
-            ok = np.isfinite(obs.corners_px[0, v]).all(axis=1)
-            proj, _ = cv2.projectPoints(obj[ok], cv2.Rodrigues(poses.R[0, v])[0], poses.t[0, v], K, d)
-            res_views[v] = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - obs.corners_px[0, v, ok]) ** 2, axis=1)))
-        view_rms = {names[0]: res_views}
+        view_rms = {names[0]: _single_camera_view_rms(obs, poses, intr[0], use[0])}
 
     # 4. world frame ---------------------------------------------------------------
     if floor_index is not None:
         v = floor_index
         if not np.isfinite(t_wb[v]).all():
-            raise CalibrationError(f"floor view {obs.view_labels[0][v]!r} (index {v}): no camera saw the whole board in it; "
-                                   f"take a picture of the board lying on the floor that at least one camera sees entirely")
+            raise CalibrationError(f"floor view {obs.view_labels[0][v]!r} (index {v}): no camera saw enough of the board in "
+                                   f"it; take a picture of the board lying on the floor that at least one camera sees "
+                                   f"entirely")
         R_a, t_a = floor_transform(R_wb[v], t_wb[v])
         world = f"floor board in view {v} ({obs.view_labels[0][v]}): origin at the board origin, x along its rows, z up"
     else:

@@ -122,6 +122,7 @@ class WandObservations:
         """The same observations with cameras in the order ``camera_names``."""
         missing = [n for n in camera_names if n not in self.camera_names]
         if missing:
-            raise ValueError(f"wand observations have no camera {missing}; they have {self.camera_names}")
+            raise CalibrationError(f"the wand observations have no camera {', '.join(map(repr, missing))}; they have "
+                                   f"{', '.join(map(repr, self.camera_names))} (give camera_names in the wand file)")
         idx = [self.camera_names.index(n) for n in camera_names]
         return WandObservations(list(camera_names), self.markers_px[idx])
