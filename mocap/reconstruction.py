@@ -1,8 +1,10 @@
 """Labelled 2D tracks of several cameras to labelled 3D trajectories.
 
-Correspondence across views is given by the labels the 2D trackers keep; it is checked
-with epipolar geometry (a view whose point lies far from the epipolar lines of the other
-views' points of the same label is dropped), then every label of every frame is
+Correspondence across views is given by the labels the 2D trackers keep. It is first
+corrected with the 3D points seen by the other cameras (:func:`relabel_views`: undoes
+swaps, drops inconsistent views, re-acquires lost labels from the raw detections), then
+checked with epipolar geometry (a view whose point lies far from the epipolar lines of
+the other views' points of the same label is dropped), then every label of every frame is
 triangulated in one vectorised call (:func:`mocap.triangulation.triangulate`: DLT,
 refinement, worst-camera rejection on the reprojection residual). Optionally the
 trajectories are smoothed (zero-lag Butterworth or Kalman/RTS, :mod:`mocap.smoothing`) and
@@ -21,9 +23,10 @@ from scipy.optimize import linear_sum_assignment
 from mocap.calibration import Calibration
 from mocap.smoothing import butterworth_filtfilt, fill_gaps, rts_smooth
 from mocap.triangulation import (
+    camera_normalized,
     epipolar_distances,
     normalized_coordinates,
-    project_normalized,
+    pixels_to_normalized,
     triangulate,
     triangulate_normalized,
 )
@@ -240,7 +243,7 @@ def _candidates(
         # One undistortion call per camera for all frames' candidates.
         sizes = [len(u) for u in per_frame]
         flat = np.vstack(per_frame) if sum(sizes) else np.zeros((0, 2))
-        norm = normalized_coordinates(np.broadcast_to(flat, (1,) + flat.shape), Calibration((cal[c],)))[0] if len(flat) else flat
+        norm = pixels_to_normalized(cal[c], flat) if len(flat) else flat
         for f, part_px, part_n in zip(range(F), per_frame, np.split(norm, np.cumsum(sizes)[:-1])):
             cand_px[c][f] = part_px
             cand_n[c][f] = part_n
@@ -342,7 +345,7 @@ def relabel_views(
             loo = np.where(from_motion[..., None], coast[None], pts[:C])
             new = cur.copy()
             for c in range(C):
-                pred = project_normalized(loo[c], Calibration((cal[c],)))[0] * focal[c]
+                pred = camera_normalized(cal[c], loo[c]) * focal[c]
                 here = np.where((cur[c] >= 0)[:, None], cand_n[c][f][np.maximum(cur[c], 0)] * focal[c], np.nan) if len(cand_n[c][f]) else np.full((M, 2), np.nan)
                 with np.errstate(invalid="ignore"):
                     ok = np.linalg.norm(here - pred, axis=1) <= gate_px

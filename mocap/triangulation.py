@@ -33,6 +33,8 @@ __all__ = [
     "triangulate",
     "triangulate_normalized",
     "project_normalized",
+    "camera_normalized",
+    "pixels_to_normalized",
     "normalized_residuals",
     "epipolar_distances",
 ]
@@ -92,11 +94,7 @@ def normalized_coordinates(p2ds: np.ndarray, calibration: Calibration) -> np.nda
     ``(x, y)`` such that the camera-frame ray is ``(x, y, 1)``; NaN stays NaN.
     """
     p = _check_p2ds(p2ds, calibration)
-    out = np.empty_like(p)
-    for c, cam in enumerate(calibration):
-        und = cam.undistort_pixels(p[c])
-        out[c] = (und - cam.K[:2, 2]) @ np.linalg.inv(cam.K[:2, :2]).T
-    return out
+    return np.stack([pixels_to_normalized(cam, p[c]) for c, cam in enumerate(calibration)])
 
 
 def _dlt_normalized(xy: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -326,12 +324,20 @@ def project_normalized(p3ds: np.ndarray, calibration: Calibration) -> np.ndarray
     NaN for points behind a camera or NaN input.
     """
     X = np.asarray(p3ds, dtype=np.float64).reshape(-1, 3)
-    out = np.empty((len(calibration), len(X), 2))
-    for c, cam in enumerate(calibration):
-        pc = X @ cam.R.T + cam.t
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[c] = np.where(pc[:, 2:3] > 0, pc[:, :2] / pc[:, 2:3], np.nan)
-    return out
+    return np.stack([camera_normalized(cam, X) for cam in calibration])
+
+
+def camera_normalized(cam, p3ds: np.ndarray) -> np.ndarray:
+    """World points ``(N, 3)`` to one camera's undistorted normalised coordinates ``(N, 2)``."""
+    pc = np.asarray(p3ds, dtype=np.float64).reshape(-1, 3) @ cam.R.T + cam.t
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(pc[:, 2:3] > 0, pc[:, :2] / pc[:, 2:3], np.nan)
+
+
+def pixels_to_normalized(cam, p2ds: np.ndarray) -> np.ndarray:
+    """One camera's distorted pixels ``(N, 2)`` to undistorted normalised coordinates."""
+    und = cam.undistort_pixels(p2ds)
+    return (und - cam.K[:2, 2]) @ np.linalg.inv(cam.K[:2, :2]).T
 
 
 def _focal(calibration: Calibration) -> np.ndarray:
