@@ -4,9 +4,9 @@ Arrays follow :mod:`mocap.calibration`: ``p2ds`` is ``(C, N, 2)`` distorted pixe
 NaN where a camera did not see the point, ``p3ds`` is ``(N, 3)`` metres (world frame).
 
 * :func:`triangulate_dlt` -- weighted linear DLT on undistorted normalised coordinates,
-  one batched SVD over ``(N, 2C, 4)``.
+  the ``(N, 2C, 4)`` systems solved at once (batched 3x3 normal equations).
 * :func:`refine_points` -- a few Gauss-Newton steps on the (weighted) reprojection error in
-  distorted pixels, using OpenCV's projection Jacobian.
+  undistorted pixels, analytic Jacobian, vectorised.
 * :func:`reprojection_residuals` -- ``(C, N)`` pixel distances.
 * :func:`triangulate` -- DLT + refinement + outlier rejection: while a point's worst
   residual exceeds a threshold, drop the worst camera and retry, as long as at least
