@@ -92,22 +92,35 @@ class AlphaBetaTracker(Tracker2D):
         self.residual_smoothing = float(residual_smoothing)
         self.initial_residual_px = float(initial_residual_px)
         M = self.n_markers
-        self.x = np.array(initial_xy, dtype=np.float64)  # (M, 2) smoothed position x_s, px
-        self.v = np.zeros((M, 2))  # (M, 2) smoothed velocity v_s, px/s
+        # State (M, 4): smoothed position x_s (px) and velocity v_s (px/s) per marker,
+        # [x, y, vx, vy]; the prediction is one small matrix product.
+        self._s = np.zeros((M, 4))
+        self._s[:, :2] = np.asarray(initial_xy, dtype=np.float64)
+        self._FT = np.eye(4)
+        self._FT[2, 0] = self._FT[3, 1] = self.dt  # x_p = x_s + dt v_s, v_p = v_s
         self.res2 = np.full(M, self.initial_residual_px**2)  # (M,) running mean squared residual norm, px**2
         self.radius = np.full(M, self.base_radius_px)  # (M,) search radius, px
         self._svar = (self.radius * self.radius / self.gate_threshold)[:, None]
         self._set_info()
 
+    @property
+    def x(self) -> np.ndarray:
+        """(M, 2) float: smoothed position ``x_s`` in pixels."""
+        return self._s[:, :2]
+
+    @property
+    def v(self) -> np.ndarray:
+        """(M, 2) float: smoothed velocity ``v_s`` in px/s."""
+        return self._s[:, 2:]
+
     def _predict(self) -> None:
-        self.x += self.dt * self.v  # x_p (v_p = v_s)
-        self._centre = self.x.copy()
+        self._s = s = self._s @ self._FT  # x_p = x_s + dt v_s, v_p = v_s
+        self._centre = s[:, :2].copy()
         # radius = base + residual_gain * rms(r) + speed_gain * |v| dt, times the frames
         # since the last detection (plus this one) while coasting.
-        r = np.hypot(self.v[:, 0], self.v[:, 1])
+        r = np.hypot(s[:, 2], s[:, 3])
         r *= self.speed_gain * self.dt
-        r += self.residual_gain * np.sqrt(self.res2)
-        r += self.base_radius_px
+        r += self._res_radius
         if self._any_coasting:
             r *= self._coast + 1
         self.radius = r
@@ -116,38 +129,47 @@ class AlphaBetaTracker(Tracker2D):
         var *= 1.0 / self.gate_threshold
         self._svar = var[:, None]
 
+    @property
+    def _res_radius(self) -> np.ndarray:
+        """(M,) px: base radius plus the residual term of the search radius."""
+        t = np.sqrt(self.res2)
+        t *= self.residual_gain
+        t += self.base_radius_px
+        return t
+
     def _correct(self, z: np.ndarray, has: np.ndarray | None) -> None:
-        r = z - self.x  # (1) residual, px
+        s = self._s
+        r = z - s[:, :2]  # (1) residual, px
         if has is not None:
             r[~has] = 0.0  # no measurement: x_s = x_p, v_s = v_p
         if self.alpha == 1.0:
-            self.x += r  # (2) with alpha = 1
+            s[:, :2] += r  # (2) with alpha = 1
         else:
-            self.x += self.alpha * r  # (2)
+            s[:, :2] += self.alpha * r  # (2)
         e2 = r * r
         e2 = e2[:, 0] + e2[:, 1]
         if self._any_coasting:
             # The residual built up over the coasted frames plus this one.
             r /= (self._coast + 1)[:, None]
         r *= self.beta / self.dt
-        self.v += r  # (3)
-        s = self.residual_smoothing
+        s[:, 2:] += r  # (3)
+        sm = self.residual_smoothing
         if has is None:
-            self.res2 *= 1.0 - s
-            e2 *= s
+            self.res2 *= 1.0 - sm
+            e2 *= sm
             self.res2 += e2
         else:
-            self.res2 += np.where(has, s * (e2 - self.res2), 0.0)
+            self.res2 += np.where(has, sm * (e2 - self.res2), 0.0)
 
     def _restart(self, mask: np.ndarray, xy: np.ndarray) -> None:
-        self.x[mask] = xy[mask]
-        self.v[mask] = 0.0
+        self._s[mask, :2] = xy[mask]
+        self._s[mask, 2:] = 0.0
         self.res2[mask] = self.initial_residual_px**2
 
     def _drop_velocity(self, mask: np.ndarray) -> None:
-        self.v[mask] = 0.0
+        self._s[mask, 2:] = 0.0
 
     @property
     def x_est(self) -> np.ndarray:
         """(M, 2) float: smoothed position ``x_s`` in pixels."""
-        return self.x
+        return self._s[:, :2]

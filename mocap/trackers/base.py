@@ -256,7 +256,9 @@ class Tracker2D:
     def _set_info(self) -> None:
         # Gate variance clipped to [min_gate_px, max_gate_px] radii, and the squared radius
         # of circular gates (a detection at squared distance d2 is inside when d2 <= thr).
-        gvar = np.clip(self._svar, self._var_min, self._var_max)
+        # (np.maximum/np.minimum: ufuncs, cheaper than np.clip's wrapper on small arrays)
+        gvar = np.maximum(self._svar, self._var_min)
+        np.minimum(gvar, self._var_max, out=gvar)
         self._gvar = gvar
         self._thr = gvar * self.gate_threshold
 

@@ -70,7 +70,9 @@ def _systematic_flat(weights: np.ndarray, u: np.ndarray) -> np.ndarray:
     # counts of every row (the first of row m is K_0 of that row).
     cum += (N * np.arange(M, dtype=np.float64))[:, None]
     k = cum.astype(np.intp).ravel()
-    counts = np.diff(k, prepend=0)
+    counts = np.empty_like(k)  # np.diff(k, prepend=0) without its concatenation
+    counts[0] = k[0]
+    np.subtract(k[1:], k[:-1], out=counts[1:])
     return np.repeat(np.arange(M * N), counts)
 
 
@@ -152,9 +154,13 @@ class CondensationTracker(Tracker2D):
 
     def _set_spread(self) -> None:
         p = self.p
-        mean = p.mean(axis=2)  # (2, M)
-        var = (p * p).mean(axis=2)
+        inv_n = 1.0 / self.n_particles
+        mean = np.add.reduce(p, axis=2)  # (2, M)
+        mean *= inv_n
+        var = np.add.reduce(p * p, axis=2)
+        var *= inv_n
         var -= mean * mean  # per-axis particle variance
+        np.maximum(var, 0.0, out=var)  # rounding
         var += self._obs_var
         self._centre = mean.T.copy()
         self._svar = var.T
@@ -196,12 +202,12 @@ class CondensationTracker(Tracker2D):
         d2 -= d2.min(axis=1, keepdims=True)  # best particle gets exp(0): no underflow
         d2 *= -0.5 / self._obs_var
         w = np.exp(d2, out=d2)
-        w /= w.sum(axis=1, keepdims=True)
+        w /= np.add.reduce(w, axis=1, keepdims=True)
         if has is not None:
             w[~has] = 1.0 / self.n_particles
         self.weights = w
         self._uniform = False
-        est = (self.p * w).sum(axis=2).T  # (M, 2) weighted mean
+        est = np.add.reduce(self.p * w, axis=2).T  # (M, 2) weighted mean
         step = est - self._centre
         if has is not None:
             step[~has] = 0.0
