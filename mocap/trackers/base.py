@@ -4,7 +4,8 @@ A tracker follows ``M`` labelled markers in ONE camera. Each frame it runs
 
 1. :meth:`Tracker2D.predict` -- advance every label's state to the new frame;
 2. :meth:`Tracker2D.gate` -- the search area of every label, from the tracker's own
-   uncertainty (centre ``(M, 2)`` px and a per-axis gate variance ``(M, 2)`` px**2);
+   uncertainty: centre ``(M, 2)`` px and a diagonal gate covariance ``(M, 2, 2)`` px**2
+   (per image axis, or circular), gated at a chi-square quantile;
 3. :meth:`Tracker2D.associate` -- detections ``(n, 2)`` px to labels, ``(M,)`` index or -1,
    by the Hungarian method (``scipy.optimize.linear_sum_assignment``) on a cost of
    squared Mahalanobis distances; pairs outside a gate are forbidden;
@@ -17,9 +18,9 @@ Loss handling (shared by all trackers)
 --------------------------------------
 A label with no detection *coasts* on its prediction (status :data:`COASTING`); its gate
 keeps growing with the tracker's uncertainty. After more than ``max_coast_frames``
-consecutive frames without a detection it is *lost* (:data:`LOST`): its velocity is
-dropped (the motion model is no longer trusted) and its gate keeps growing up to
-``max_gate_px``. A lost label is *re-acquired* by a detection inside its grown gate that
+consecutive frames without a detection it is *lost* (:data:`LOST`): by default its
+velocity is dropped (the motion model is no longer trusted; a tracker may keep it, as
+``imm`` does) and its gate keeps growing up to ``max_gate_px``. A lost label is *re-acquired* by a detection inside its grown gate that
 no tracked or coasting label claims (lost labels are associated in a second round, with
 the left-over detections only); the filter then restarts at that detection.
 Labels whose initial position is NaN start lost and have no gate: nothing can be
@@ -51,8 +52,9 @@ Optionally override ``_drop_velocity(mask)`` (called when labels become lost) an
 ``_association_cost(d2, inside)`` (the cost used when the assignment is ambiguous).
 After an ambiguous association ``self._contested`` ``(M,)`` marks labels whose gate held
 several detections or whose detection lay in several gates (``None`` otherwise); a
-tracker may use it in ``_correct``. A tracker's ``associate`` may also set
-``self._shared_z`` ``(M, 2)`` px (NaN rows elsewhere): a blob that a label without a
+tracker may use it in ``_correct``. A tracker's ``_associate`` (the one association path
+of both ``associate`` and ``step``) may also set ``self._shared_z`` ``(M, 2)`` px (NaN
+rows elsewhere): a blob that a label without a
 detection of its own shares with another label (two markers merged into one blob). The
 filter is then corrected with it and the label does not count towards loss, but it
 stays ``COASTING`` with no detection (``associate`` stays one-to-one).

@@ -33,10 +33,10 @@ not, and it does not let a merged blob bend a track.
   a detection whose prediction is within ``merge_distance_px`` of another label's
   prediction and blob is *sharing* that blob; a label whose neighbouring blob (labelled
   or not, e.g. seed 000's "NULL" marker) vanished right next to it while its own blob
-  jumped towards it has *merged* with it. Such labels coast on their own velocity (the blob does not correct them) without
-  drifting towards loss, as long as the blob stays within ``merge_distance_px`` of
-  their prediction; when the blobs separate, the velocity-consistent cost puts each
-  label back on its own marker. The assignment reported stays one-to-one: a sharing
+  jumped towards it has *merged* with it. Such labels coast on their own velocity (the
+  blob does not correct them) without drifting towards loss, as long as the blob stays
+  within ``merge_distance_px`` of their prediction; when the blobs separate, the
+  velocity-consistent cost puts each label back on its own marker. The assignment reported stays one-to-one: a sharing
   label has no detection of its own (status coasting).
 * **Occlusion coasting**: without a detection the IMM keeps predicting and its gate
   opens up (the manoeuvre model's covariance grows fastest); a label is lost after
@@ -48,6 +48,10 @@ State per model ``k`` and marker, per image axis: position and velocity with a 2
 covariance (``F``, ``Q``, ``H``, ``R`` are block-diagonal per axis, as in
 :mod:`mocap.trackers.kalman`), stored as ``(K, M, 2)`` arrays so that every step is a
 few dozen element-wise numpy operations for all markers and models at once.
+
+Frame-counted parameters (``p_stay``, ``max_merge_frames``, ``max_coast_frames``) are
+per frame; the defaults were chosen on 30 fps and 200 Hz test data (see
+:func:`mocap.bench_trackers.run_robustness_check` and ``tests/test_trackers_*.py``).
 """
 
 from __future__ import annotations
