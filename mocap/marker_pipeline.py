@@ -9,6 +9,7 @@ real webcam video (``mocap markers``) and on the bench's rendered frames
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,7 @@ from mocap.errors import MocapInputError
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, initial_labels
 from mocap.reassociation import ReassociationParams, reassociate
 from mocap.reconstruction import ReconstructionParams, reconstruct
+from mocap.swap_repair import SwapRepairParams, find_jumps, repair_swaps
 from mocap.tracking import track_cameras
 from mocap.types import Detections, Tracks2D, Trajectories
 
@@ -38,7 +40,8 @@ class MarkerPipelineParams:
     solve_skeleton: bool = True
     model_guided: bool = True
     model_gate_px: float = 5.0
-    model_outlier_mm: float = 15.0
+    model_outlier_mm: float = 10.0
+    swap_repair: SwapRepairParams | None = field(default_factory=SwapRepairParams)
 
 
 @dataclass
@@ -117,7 +120,7 @@ def capture_from_detections(
                            dt=dt, rng=rng, **params.tracker_params)
     timings["tracking"] = (time.perf_counter() - t0) * 1e3
     t0 = time.perf_counter()
-    traj = reconstruct(tracks, calibration, params.reconstruction, times=np.asarray(times, float))
+    traj = reconstruct(tracks, calibration, params.reconstruction, times=np.asarray(times, float), detections=detections)
     reassoc_stats: dict[str, int] = {}
 
     def add_stats(stats: dict[str, int]) -> None:
@@ -125,11 +128,18 @@ def capture_from_detections(
             reassoc_stats[k] = reassoc_stats.get(k, 0) + v
 
     measured = tracks
+    swaps: list = []
+    traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps)
+    # The first reconstruction re-labels views across cameras and re-acquires lost
+    # labels from the raw detections; later ones triangulate exactly the measurements
+    # the re-association kept (it may drop partly hidden blobs on purpose).
+    later = dataclasses.replace(params.reconstruction, relabel_gate_px=0)
     if params.reassociation is not None:
         # 3D-guided correspondence: reproject, re-associate detections, reconstruct again.
         for _ in range(params.reassociation_passes):
             measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
-            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
+            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
+            traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps)
             add_stats(stats)
     timings["reconstruction"] = (time.perf_counter() - t0) * 1e3
     fit = None
@@ -150,26 +160,69 @@ def capture_from_detections(
             measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation,
                                           points=predicted, gate_px=gate)
             add_stats({f"model_{k}": v for k, v in stats.items()})
-            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
+            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
+            traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps)
             measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
             add_stats(stats)
-            traj = reconstruct(measured, calibration, params.reconstruction, times=np.asarray(times, float))
-            fit = solver.solve(traj)
+            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
+            traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps, jumps=False)
+            fit = solver.solve(_drop_outliers(traj, solver.solve(traj), params.model_outlier_mm))
+            # Points still off the fitted skeleton by more than model_outlier_mm are
+            # mislabelled or ghosts: remove them, fill short gaps as elsewhere.
+            traj = _drop_outliers(traj, fit, params.model_outlier_mm, refill=params.reconstruction)
+            reassoc_stats["missing_after_model_check"] = int(np.isnan(traj.xyz[..., 0]).sum())
         timings["skeleton"] = (time.perf_counter() - t0) * 1e3
+    reassoc_stats["swaps_repaired"] = sum(1 for e in swaps if e[0] == "swap")
+    reassoc_stats["jump_samples_removed"] = sum(1 for e in swaps if e[0] == "jump")
     tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
     return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
 
 
-def _drop_outliers(traj: Trajectories, fit, max_mm: float) -> Trajectories:
-    """Trajectories without the points that disagree with a skeleton fit by > ``max_mm``."""
+def _repair_swaps(traj: Trajectories, measured: Tracks2D, params: SwapRepairParams | None,
+                  events_log: list, jumps: bool = True) -> tuple[Trajectories, Tracks2D]:
+    """Undo 3D label swaps in the trajectories and in the 2D measurements behind them."""
+    if params is None:
+        return traj, measured
+    xyz, events = repair_swaps(traj.xyz, params)
+    jumps = find_jumps(xyz, params) if jumps else np.zeros(xyz.shape[:2], bool)
+    if not events and not jumps.any():
+        return traj, measured
+    xy = measured.xy.copy()
+    filled, res, nv = traj.filled.copy(), traj.residual_px.copy(), traj.n_views.copy()
+    for f, a, b in events:
+        xy[f:, :, [a, b]] = xy[f:, :, [b, a]]
+        for arr in (filled, res, nv):
+            arr[f:, [a, b]] = arr[f:, [b, a]]
+    # A label that jumped onto another marker loses those samples (and their views).
+    xyz[jumps] = np.nan
+    xy[jumps[:, None, :].repeat(xy.shape[1], axis=1)] = np.nan
+    nv = np.where(jumps, 0, nv)
+    events_log.extend(("swap", f, a, b) for f, a, b in events)
+    events_log.extend(("jump", int(f), int(m)) for f, m in zip(*np.nonzero(jumps)))
+    return (Trajectories(list(traj.labels), xyz, traj.times, filled, res, nv),
+            Tracks2D(measured.labels, xy, measured.predicted_xy, measured.status, measured.camera_names))
+
+
+def _drop_outliers(traj: Trajectories, fit, max_mm: float, refill: ReconstructionParams | None = None) -> Trajectories:
+    """Trajectories without the points that disagree with a skeleton fit by > ``max_mm``
+    (with ``refill``: short gaps filled again as :func:`mocap.reconstruction.reconstruct` does)."""
     idx = [fit.marker_labels.index(n) if n in fit.marker_labels else -1 for n in traj.labels]
     err = np.full(traj.xyz.shape[:2], np.nan)
     for j, i in enumerate(idx):
         if i >= 0:
             err[:, j] = fit.marker_errors_mm[:, i]
     xyz = traj.xyz.copy()
-    xyz[np.nan_to_num(err, nan=0.0) > max_mm] = np.nan
-    return Trajectories(list(traj.labels), xyz, traj.times, traj.filled, traj.residual_px, traj.n_views)
+    bad = np.nan_to_num(err, nan=0.0) > max_mm
+    xyz[bad] = np.nan
+    filled = np.asarray(traj.filled, bool) & ~bad
+    n_views = np.where(bad, 0, traj.n_views)
+    if refill is not None and refill.max_gap_frames > 0:
+        from mocap.smoothing import fill_gaps
+
+        xyz[filled] = np.nan  # re-fill every gap from measured points only
+        method = "cubic" if refill.smoothing != "none" else "lsq"
+        xyz, filled = fill_gaps(xyz, traj.times, refill.max_gap_frames, method, refill.gap_context_frames)
+    return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, n_views)
 
 
 def _model_markers(solver, fit, labels: list[str]) -> np.ndarray:
