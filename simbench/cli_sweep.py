@@ -6,6 +6,7 @@ Registered on the main app by :func:`register` (see the end of :mod:`simbench.cl
 from __future__ import annotations
 
 import functools
+import sys
 import time
 from pathlib import Path
 from typing import Optional
@@ -69,6 +70,9 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
     task = prog.add_task(sw.name, total=len(sw.runs), failed=0, skipped=0)
 
     def on_progress(p) -> None:
+        if p.last is None:  # start: runs already done do not count towards the speed (time left)
+            prog.reset(task, total=p.total, completed=p.done, failed=p.failed, skipped=p.skipped)
+            return
         prog.update(task, completed=p.done, failed=p.failed, skipped=p.skipped)
         if p.last is not None and p.last.status != "ok":
             first = p.last.error.splitlines()[0] if p.last.error else ""
@@ -79,6 +83,10 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
                             on_progress=on_progress)
     console.print(f"{summary.ran} runs in {summary.wall_s:.1f} s ({summary.failed} failed, {summary.skipped} already done); "
                   f"database {summary.db}", highlight=False)
+    if summary.not_ingested:
+        console.print(f"{summary.not_ingested} runs are stored in {summary.db.parent / 'results'} but not yet in the "
+                      f"database (it was locked by another process); `simbench report` or `--resume` ingests them",
+                      highlight=False)
     if summary.failed:
         raise typer.Exit(1)
 
@@ -120,7 +128,8 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
     records = _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler)
     checks = rg.compare(records, base, suites.tolerances_for(suite))
     wall = time.perf_counter() - t0
-    rg.print_checks(checks, Console(), suite=suite, baseline=base_path, verbose=verbose, wall_s=wall)
+    out_console = Console() if sys.stdout.isatty() else Console(width=160)
+    rg.print_checks(checks, out_console, suite=suite, baseline=base_path, verbose=verbose, wall_s=wall)
     if junit:
         rg.write_junit(checks, junit, suite=suite, wall_s=wall)
         console.print(f"wrote {junit}", highlight=False)

@@ -67,9 +67,11 @@ class Tolerance(_Model):
         return max(self.abs, self.rel * abs(baseline))
 
     def describe(self) -> str:
-        parts = [f"±{self.abs:g}" if self.abs else "", f"±{100 * self.rel:g}%" if self.rel else ""]
-        tol = " or ".join(p for p in parts if p) or "exact"
-        return f"{tol}, {self.worse} is worse" if self.worse != "either" else f"{tol}, any change"
+        """E.g. ``higher worse, ±max(0.25, 10%)``."""
+        parts = [f"{self.abs:g}" if self.abs else "", f"{100 * self.rel:g}%" if self.rel else ""]
+        parts = [p for p in parts if p]
+        tol = "±" + (f"max({', '.join(parts)})" if len(parts) == 2 else parts[0]) if parts else "exact"
+        return f"{self.worse} worse, {tol}" if self.worse != "either" else f"any change, {tol}"
 
 
 def _flat(v):
@@ -322,6 +324,7 @@ def _change(c: MetricCheck) -> str:
 
 
 _STYLE = {REGRESSED: "bold red", MISSING: "bold red", ERROR: "bold red", IMPROVED: "green", NEW: "cyan", OK: "dim"}
+_SCENARIO_NOTES = ("scenario differs from the baseline's", "scenario not in the baseline")
 
 
 def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseline: Path, verbose: bool = False,
@@ -331,17 +334,30 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
     scen = sorted({c.scenario for c in checks})
     counts = {s: sum(c.status == s for c in checks) for s in (REGRESSED, MISSING, ERROR, IMPROVED, NEW, OK)}
     if shown:
-        title = f"simbench check --suite {suite}: changes against {baseline}"
-        t = Table(title=title, title_justify="left", show_lines=False)
-        for col, kw in (("scenario", {}), ("metric", {}), ("baseline", {"justify": "right"}), ("current", {"justify": "right"}),
-                        ("change", {"justify": "right"}), ("tolerance", {}), ("status", {}), ("note", {"overflow": "fold"})):
-            t.add_column(col, **kw)
+        t = Table(title=f"simbench check --suite {suite} against {baseline}", title_justify="left")
+        t.add_column("scenario", no_wrap=True)
+        t.add_column("metric", no_wrap=True)
+        t.add_column("baseline", justify="right", no_wrap=True)
+        t.add_column("current", justify="right", no_wrap=True)
+        t.add_column("change", justify="right", no_wrap=True)
+        t.add_column("tolerance", no_wrap=True)
+        t.add_column("status", no_wrap=True)
+        with_notes = any(c.note and c.note not in _SCENARIO_NOTES for c in shown)
+        if with_notes:
+            t.add_column("note", overflow="fold")
         order = {REGRESSED: 0, MISSING: 1, ERROR: 2, IMPROVED: 3, NEW: 4, OK: 5}
         for c in sorted(shown, key=lambda c: (order[c.status], c.scenario, c.metric)):
             st = _STYLE[c.status]
-            t.add_row(c.scenario, c.metric, _fmt(c.baseline), _fmt(c.current), _change(c),
-                      c.tolerance.describe() if c.tolerance else "", f"[{st}]{c.status.upper()}[/]", c.note)
+            row = [c.scenario, c.metric, _fmt(c.baseline), _fmt(c.current), _change(c),
+                   c.tolerance.describe() if c.tolerance else "", f"[{st}]{c.status.upper()}[/]"]
+            if with_notes:
+                row.append("" if c.note in _SCENARIO_NOTES else c.note)
+            t.add_row(*row)
         console.print(t)
+    for name in scen:
+        notes = {c.note for c in checks if c.scenario == name and c.note in _SCENARIO_NOTES}
+        for n in sorted(notes):
+            console.print(f"note: {name}: {n}", highlight=False)
     n_fail = counts[REGRESSED] + counts[MISSING] + counts[ERROR]
     verdict = "[bold red]FAIL[/]" if n_fail else "[bold green]PASS[/]"
     took = f" in {wall_s:.0f} s" if wall_s is not None else ""

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 import time
 from contextlib import contextmanager
@@ -65,8 +66,10 @@ CREATE TABLE IF NOT EXISTS runs (
     versions JSON,                -- {package: version}
     worker VARCHAR,               -- host:pid that ran it
     out_dir VARCHAR,              -- run outputs, relative to the database's folder
-    frames_file VARCHAR           -- per-frame Parquet, relative to the database's folder
+    frames_file VARCHAR,          -- per-frame Parquet, relative to the database's folder
+    warnings JSON                 -- distinct warnings the run raised (file:line: category: message)
 );
+ALTER TABLE runs ADD COLUMN IF NOT EXISTS warnings JSON;  -- databases written before the column existed
 CREATE TABLE IF NOT EXISTS metrics (
     run_id VARCHAR,
     metric VARCHAR,
@@ -100,6 +103,7 @@ class RunRecord:
     worker: str = ""
     out_dir: str = ""
     frames_file: str = ""
+    warnings: list[str] = field(default_factory=list)
     metrics: dict[str, float] = field(default_factory=dict)
     per_frame: pa.Table | None = None
 
@@ -177,6 +181,20 @@ class ResultStore:
             return []
         return [RunRecord.from_json_dict(json.loads(p.read_text())) for p in sorted(self.results_dir.glob("*.json"))]
 
+    def remove_temporaries(self) -> int:
+        """Delete half-written files and run folders a killed sweep left behind; return how many."""
+        n = 0
+        for d in (self.results_dir, self.frames_dir):
+            if d.is_dir():
+                for p in d.glob(".*.tmp"):
+                    p.unlink(missing_ok=True)
+                    n += 1
+        if self.runs_dir.is_dir():
+            for p in self.runs_dir.glob(".*.partial-*"):
+                shutil.rmtree(p, ignore_errors=True)
+                n += 1
+        return n
+
     def statuses(self) -> dict[str, str]:
         """``{run_id: status}`` of every stored run."""
         return {r.run_id: r.status for r in self.read_all()}
@@ -235,11 +253,12 @@ class ResultsDB:
                     con.execute("DELETE FROM metrics WHERE run_id = ?", [r.run_id])
                     con.execute("DELETE FROM runs WHERE run_id = ?", [r.run_id])
                     con.execute(
-                        "INSERT INTO runs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                        "INSERT INTO runs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                         [r.run_id, r.sweep, r.run_index, r.scenario, r.scenario_hash,
                          json.dumps(r.factors, default=str), json.dumps(r.parameters, default=str),
                          r.status, r.error, _ts(r.started_at), _ts(r.ended_at), r.duration_s,
-                         json.dumps(r.timings), json.dumps(r.versions), r.worker, r.out_dir, r.frames_file])
+                         json.dumps(r.timings), json.dumps(r.versions), r.worker, r.out_dir, r.frames_file,
+                         json.dumps(r.warnings)])
                     rows = [(r.run_id, k, float(v)) for k, v in sorted(r.metrics.items())]
                     if rows:
                         con.executemany("INSERT INTO metrics VALUES (?, ?, ?)", rows)
@@ -280,8 +299,11 @@ class ResultsDB:
         with self.connect(read_only=True) as con:
             q = "SELECT * FROM runs" + (" WHERE sweep = ?" if sweep else "") + " ORDER BY sweep, run_index"
             df = con.execute(q, [sweep] if sweep else []).df()
-        for col in ("factors", "parameters", "timings", "versions"):
-            df[col] = df[col].map(lambda s: json.loads(s) if isinstance(s, str) else {})
+        for col, empty in (("factors", dict), ("parameters", dict), ("timings", dict), ("versions", dict), ("warnings", list)):
+            if col not in df:  # a database written before the column existed, opened read-only
+                df[col] = [empty() for _ in range(len(df))]
+            else:
+                df[col] = df[col].map(lambda s, empty=empty: json.loads(s) if isinstance(s, str) else empty())
         return df
 
     def metrics_long(self, sweep: str | None = None) -> pd.DataFrame:

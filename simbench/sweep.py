@@ -54,10 +54,12 @@ import threading
 import time
 import tomllib
 import traceback
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Literal
+from typing import Any, Callable, Iterator, Literal
 
+import duckdb
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -348,22 +350,34 @@ def _record(spec: RunSpec, status: str, **kw) -> RunRecord:
 
 def execute_run(task: RunTask) -> RunRecord:
     """Run one scenario in this (worker) process; never raises for a failing run."""
-    started = time.time()
     worker = f"{socket.gethostname()}:{os.getpid()}"
     versions = package_versions()
-    try:
-        from simbench.run import run_scenario
+    # One run at a time per process (lock); warnings are kept with the run, not printed
+    # over the sweep's progress bar.
+    with _RUN_LOCK, warnings.catch_warnings(record=True) as caught:
+        started = time.time()
+        warnings.simplefilter("always")
+        try:
+            from simbench.run import run_scenario
 
-        with _RUN_LOCK:
             result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
-        metrics = {k: float(v) for k, v in result.metrics.items()}
-        return _record(task.spec, STATUS_OK, started_at=started, ended_at=time.time(), timings=dict(result.timings_s),
-                       versions=versions, worker=worker, out_dir=task.out_dir or "", metrics=metrics,
-                       per_frame=per_frame_table(result))
-    except Exception as exc:  # a failing run is recorded, the sweep goes on
-        tb = traceback.format_exc(limit=-6)
-        return _record(task.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}\n{tb}", started_at=started,
-                       ended_at=time.time(), versions=versions, worker=worker)
+            metrics = {k: float(v) for k, v in result.metrics.items()}
+            return _record(task.spec, STATUS_OK, started_at=started, ended_at=time.time(), timings=dict(result.timings_s),
+                           versions=versions, worker=worker, out_dir=task.out_dir or "", metrics=metrics,
+                           per_frame=per_frame_table(result), warnings=_distinct(caught))
+        except Exception as exc:  # a failing run is recorded, the sweep goes on
+            tb = traceback.format_exc(limit=-6)
+            return _record(task.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}\n{tb}", started_at=started,
+                           ended_at=time.time(), versions=versions, worker=worker, warnings=_distinct(caught))
+
+
+def _distinct(caught: list[warnings.WarningMessage], limit: int = 20) -> list[str]:
+    out: list[str] = []
+    for w in caught:
+        s = f"{Path(w.filename).name}:{w.lineno}: {w.category.__name__}: {w.message}"
+        if s not in out:
+            out.append(s)
+    return out[:limit]
 
 
 # ---------------------------------------------------------------------------- executors
@@ -461,6 +475,7 @@ class SweepSummary:
     skipped: int
     wall_s: float
     records: list[RunRecord] = field(default_factory=list)
+    not_ingested: int = 0  # stored in results/ but not in the database (it was locked); ingested next time
 
 
 def default_db_path(sweep: Sweep) -> Path:
@@ -486,6 +501,7 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
         raise SimbenchInputError(
             f"{db.path}: already holds {len(mine)} of the {len(ids)} runs of sweep '{sweep.name}'; "
             f"pass --resume to skip finished runs, or give a new --db")
+    store.remove_temporaries()  # half-written files of a killed sweep
     db.reconcile()  # result files a killed sweep wrote but did not ingest
     db.record_sweep(sweep.name, str(sweep.path), sweep.spec.model_dump(mode="json"), sweep.factor_levels(), len(ids))
     todo = [r for r in sweep.runs if mine.get(r.run_id) != STATUS_OK]
@@ -495,14 +511,15 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
         on_progress(prog)
     tasks = [RunTask(r, str(store.run_dir(r.run_id).resolve()) if outputs else None) for r in todo]
     records: list[RunRecord] = []
+    not_ingested: set[str] = set()
     for rec in iter_records(tasks, workers, scheduler):
         if rec.out_dir:
             rec.out_dir = os.path.relpath(rec.out_dir, store.root)
         store.write(rec)
         try:
             db.ingest([rec])
-        except Exception:  # the result file is safe; the next reconcile ingests it
-            pass
+        except duckdb.Error:  # e.g. locked by a reader: the result file is safe, reconcile ingests it
+            not_ingested.add(rec.run_id)
         rec.per_frame = None
         records.append(rec)
         prog.done += 1
@@ -510,5 +527,10 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
         prog.last = rec
         if on_progress:
             on_progress(prog)
-    db.reconcile()
-    return SweepSummary(db.path, len(ids), len(records), prog.failed, prog.skipped, time.perf_counter() - t0, records)
+    try:
+        db.reconcile()
+        not_ingested.clear()
+    except duckdb.Error:
+        pass
+    return SweepSummary(db.path, len(ids), len(records), prog.failed, prog.skipped, time.perf_counter() - t0, records,
+                        not_ingested=len(not_ingested))
