@@ -42,8 +42,8 @@ class ReassociationParams:
     gate_px: float = 3.0
     gate_filled_px: float = 6.0
     marker_radius_m: float = 0.007
-    min_area_ratio: float = 0.6
-    max_area_ratio: float = 1.8
+    min_area_ratio: float = 0.7
+    max_area_ratio: float = 1.6
     min_good_views: int = 2
 
 

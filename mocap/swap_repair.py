@@ -12,6 +12,7 @@ better, the two labels are exchanged from that frame on.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +43,8 @@ def find_jumps(xyz: np.ndarray, params: SwapRepairParams | None = None) -> np.nd
     pred = np.full_like(x, np.nan)
     pred[2:] = 2 * x[1:-1] - x[:-2]
     dev = np.linalg.norm(x - pred, axis=2)              # (F, M), NaN near gaps
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():  # labels never measured have an all-NaN column
+        warnings.simplefilter("ignore", RuntimeWarning)
         typical = np.nanmedian(dev, axis=0)
     thr = np.maximum(p.min_jump_m, p.jump_scale * np.nan_to_num(typical, nan=p.min_jump_m))
     jump = np.nan_to_num(dev, nan=0.0) > thr
