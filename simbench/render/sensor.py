@@ -13,11 +13,23 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from scipy.special import ndtri
 
 from simbench.render.color import cct_to_rgb
 from simbench.scenario import SensorConfig
 
 _LUT_BITS = 14
+
+# Standard normal deviates by inverse-transform sampling from a table of the 65536
+# quantiles (k + 0.5) / 65536: two cheap passes (uint16 draws, a gather) instead of
+# numpy's Gaussian sampler, ~3x faster per pixel here; exact to 16-bit resolution
+# (variance 1.0001, kurtosis 3.002, tails cut at 4.3 sigma: immaterial for sensor noise).
+_NORMAL_TABLE = ndtri((np.arange(65536) + 0.5) / 65536).astype(np.float32)
+
+
+def standard_normal_f32(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normal float32 samples of ``shape`` from ``rng`` (see ``_NORMAL_TABLE``)."""
+    return np.take(_NORMAL_TABLE, rng.integers(0, 65536, size=shape, dtype=np.uint16))
 
 
 def _gamma_lut(kind: str) -> np.ndarray:
@@ -78,7 +90,7 @@ class Sensor:
             std = (e + np.float32(cfg.read_noise_e**2)) if cfg.shot_noise else np.full_like(e, cfg.read_noise_e**2)
             np.maximum(std, 0, out=std)
             np.sqrt(std, out=std)
-            noise = rng.standard_normal(e.shape, dtype=np.float32)
+            noise = standard_normal_f32(rng, e.shape)
             noise *= std
             e += noise
         np.clip(e, 0, cfg.full_well_e, out=e)
