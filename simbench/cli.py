@@ -160,6 +160,10 @@ def bench_trackers(frames: int = typer.Option(200, help="frames per measurement"
     print(format_benchmark_table(run_tracker_benchmark(n_frames=frames, seed=seed)))
 
 
+from simbench.cli_study import study_app  # noqa: E402  (tracker study, issue 4)
+app.add_typer(study_app, name="study")
+
+
 def main() -> None:
     app()
 

@@ -1,0 +1,85 @@
+"""``simbench study``: studies that regenerate a paper's experiments on the bench.
+
+``simbench study trackers --out DIR`` runs :mod:`simbench.study_trackers` (seed 000's
+Tables I-VII for every registered tracker) and prints the tables; registered on the main
+app at the end of :mod:`simbench.cli`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from mocap.errors import MocapInputError
+from simbench.errors import SimbenchInputError
+
+study_app = typer.Typer(no_args_is_help=True, help="Regenerate a paper's experiments on the bench, with its numbers beside ours.")
+console = Console(stderr=True)
+
+
+def _user_errors(fn):
+    """User-caused errors: one line on stderr and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except (SimbenchInputError, MocapInputError) as exc:
+            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
+
+    return wrapper
+
+
+def _split_names(items: list[str]) -> tuple[str, ...] | None:
+    names = [n.strip() for item in items for n in item.split(",") if n.strip()]
+    return tuple(names) if names else None
+
+
+def _default_workers() -> int:
+    try:
+        return max(1, min(2, len(os.sched_getaffinity(0))))
+    except AttributeError:  # not Linux
+        return max(1, min(2, os.cpu_count() or 1))
+
+
+@study_app.command("trackers")
+@_user_errors
+def trackers(
+    out: Path = typer.Option(..., "--out", help="output folder (report.md, tables.json, losses.csv, videos/, plots/, frames/)"),
+    videos: int = typer.Option(20, "--videos", min=1, help="videos per category (seed 000: 20)"),
+    seed: int = typer.Option(0, "--seed", min=0, help="root seed of the videos and the stochastic trackers"),
+    tracker_names: list[str] = typer.Option([], "--trackers", help="trackers to compare (repeat or comma-separate); default every registered tracker"),
+    frames: int = typer.Option(80, "--frames", min=10, help="frames per video (seed 000: about 80)"),
+    categories: list[str] = typer.Option([], "--categories", help="subset of slow, rapid, acceleration, occlusion, swap"),
+    cost_frames: int = typer.Option(200, "--cost-frames", min=2, help="frames per cost measurement (Tables V-VII)"),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="rendering processes (default: up to 2 cores)"),
+) -> None:
+    """Seed 000's tracker comparison (losses, prediction errors, cost: Tables I-VII) on rendered videos."""
+    from simbench.study_trackers import CATEGORIES, StudyConfig, format_tables, run_study, write_study
+
+    cats = _split_names(categories) or CATEGORIES
+    try:
+        cfg = StudyConfig(videos_per_category=videos, n_frames=frames, seed=seed, trackers=_split_names(tracker_names),
+                          categories=cats, cost_frames=cost_frames, workers=workers or _default_workers())
+    except ValueError as exc:
+        raise SimbenchInputError(str(exc)) from exc
+    total = len(cfg.categories) * cfg.videos_per_category
+    t0 = time.perf_counter()
+    with Progress(TextColumn("[bold]videos"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("eta"),
+                  TimeRemainingColumn(), console=console, disable=not sys.stderr.isatty()) as prog:
+        task = prog.add_task("videos", total=total)
+        result = run_study(cfg, progress=lambda done, _total: prog.update(task, completed=done))
+    report = write_study(result, out)
+    print(format_tables(result))
+    tot = result.total_losses()
+    print("Total losses: " + ", ".join(f"{n} {tot[n]}" for n in result.trackers))
+    console.print(f"report: {report} ({time.perf_counter() - t0:.0f} s)")
