@@ -16,8 +16,7 @@ from simbench import study_trackers as st
 PLUGIN = "study_test_kalman"
 
 
-@pytest.fixture(scope="module")
-def study(tmp_path_factory):
+def _reduced_study(out):
     """2 videos per category, 30 frames, every registered tracker plus one registered here."""
 
     @register_tracker(PLUGIN)
@@ -27,14 +26,22 @@ def study(tmp_path_factory):
     try:
         cfg = st.StudyConfig(videos_per_category=2, n_frames=30, seed=5, cost_marker_counts=(1, 5), cost_frames=20)
         result = st.run_study(cfg)
-        out = tmp_path_factory.mktemp("study")
         report = st.write_study(result, out)
     finally:
         unregister_tracker(PLUGIN)
     return result, out, report
 
 
-def test_every_registered_tracker_is_in_every_table(study):
+def test_reduced_study_fills_every_table_consistently_with_its_logs(tmp_path):
+    """CI's reduced study (one run, checked four ways below: it renders, so it runs once)."""
+    study = _reduced_study(tmp_path)
+    _check_every_registered_tracker_is_in_every_table(study)
+    _check_loss_counts_rederive_from_the_per_video_logs(study)
+    _check_losses_and_errors_recompute_from_the_per_frame_arrays(study)
+    _check_rendered_videos_match_their_ground_truth(study)
+
+
+def _check_every_registered_tracker_is_in_every_table(study):
     result, out, report = study
     names = result.trackers
     assert PLUGIN in names and set(st.SEED_TRACKERS) | {st.OWN_TRACKER} <= set(names)
@@ -63,10 +70,11 @@ def test_every_registered_tracker_is_in_every_table(study):
     for png in ["plots/losses.png", "plots/prediction_errors.png", "plots/cost.png"] + [
             f"frames/{c}_annotated.png" for c in st.CATEGORIES]:
         assert (out / png).stat().st_size > 5000, png
-    assert PLUGIN not in available_trackers()  # the fixture cleaned up
+    assert "## Discussion" in text and f"more than **{result.config.loss_radius_px:g} px**" in text
+    assert PLUGIN not in available_trackers()  # the helper cleaned up
 
 
-def test_loss_counts_rederive_from_the_per_video_logs(study):
+def _check_loss_counts_rederive_from_the_per_video_logs(study):
     result, out, _ = study
     tables = json.loads((out / "tables.json").read_text())
     logs = [json.loads(p.read_text()) for p in sorted((out / "videos").glob("*.json"))]
@@ -88,7 +96,7 @@ def test_loss_counts_rederive_from_the_per_video_logs(study):
     assert tables["total_losses"] == tm.total_losses(tables["table_I_losses"])
 
 
-def test_losses_and_errors_recompute_from_the_per_frame_arrays(study):
+def _check_losses_and_errors_recompute_from_the_per_frame_arrays(study):
     result, out, _ = study
     cfg = result.config
     tables = json.loads((out / "tables.json").read_text())
@@ -122,7 +130,7 @@ def test_losses_and_errors_recompute_from_the_per_frame_arrays(study):
                 assert cell["mean"] == pytest.approx(v.mean())
 
 
-def test_rendered_videos_match_their_ground_truth(study):
+def _check_rendered_videos_match_their_ground_truth(study):
     """Every visible marker is detected near its true projection; hidden ones (barrier) are not."""
     result, _, _ = study
     for r in result.videos:
@@ -161,3 +169,14 @@ def test_video_plans_are_seeded_inside_the_image_and_at_the_category_speeds(cate
     lo, hi = {"slow": (1.4, 4.1), "rapid": (7.5, 15.5), "acceleration": (1.0, 15.0), "occlusion": (2.9, 7.5),
               "swap": (2.9, 6.1)}[category]
     assert lo <= min(speeds_seen) and max(speeds_seen) <= hi, speeds_seen
+
+
+def test_cli_names_the_known_trackers_for_an_unknown_one(tmp_path):
+    from typer.testing import CliRunner
+
+    from simbench.cli import app
+
+    res = CliRunner().invoke(app, ["study", "trackers", "--out", str(tmp_path), "--trackers", "kalman,nope"])
+    assert res.exit_code == 2
+    assert "nope" in res.output and "alpha_beta" in res.output and "imm" in res.output
+    assert not any(tmp_path.iterdir())  # nothing rendered or written
