@@ -95,6 +95,10 @@ def markers(
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out}/")
 
 
+from mocap import shirt_cli  # noqa: E402  (colour-shirt pipeline, issue 6)
+app.command("shirt")(user_errors(shirt_cli.shirt))
+
+
 def main() -> None:
     app()
 

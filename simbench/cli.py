@@ -160,6 +160,10 @@ def bench_trackers(frames: int = typer.Option(200, help="frames per measurement"
     print(format_benchmark_table(run_tracker_benchmark(n_frames=frames, seed=seed)))
 
 
+from simbench.shirt_db import bench_shirt_command, shirt_app  # noqa: E402  (colour-shirt pipeline, issue 6)
+app.add_typer(shirt_app, name="shirt")
+bench_app.command("shirt")(bench_shirt_command)
+
 from simbench.cli_study import study_app  # noqa: E402  (tracker study, issue 4)
 app.add_typer(study_app, name="study")
 

@@ -200,6 +200,7 @@ class ShirtPipelineConfig(_Model):
     database: str | None = Field(None, description="pose database file (built by `simbench shirt build-db`)")
     database_size: int = Field(4000, ge=100)
     baseline: bool = True
+    training_frames: int = Field(60, ge=2, description="frames of other takes the colour model and IK covariances are trained on")
 
 
 class CalibrationSceneConfig(_Model):

@@ -1,0 +1,115 @@
+"""Scores of the colour-shirt pipeline against ground truth (arrays in, numbers and arrays out).
+
+* :func:`rmse_cm`: RMS distance of joint centres or surface vertices, centimetres
+  (seed 001 reports the RMS of upper-body joints, and in its Fig. 9 of all mesh vertices);
+* :func:`shoulder_angle_deg`: the shoulder angle trace of the paper's Fig. 10, here the
+  angle between the upper arm (shoulder -> elbow) and the trunk's downward axis
+  (neck -> lumbar joint), from joint centres only, so any skeleton parameterisation
+  can be compared;
+* :func:`classification_roc`: correct against incorrect classifications while the
+  classifier's threshold varies (the paper's Fig. 6).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["rmse_cm", "per_frame_rms_cm", "fill_forward", "shoulder_angle_deg", "classification_roc"]
+
+
+def per_frame_rms_cm(est_m: np.ndarray, true_m: np.ndarray) -> np.ndarray:
+    """RMS over points of each frame ``(F,)``, centimetres, for ``(F, N, 3)`` metres (NaN frames stay NaN)."""
+    d2 = np.sum((np.asarray(est_m, float) - np.asarray(true_m, float)) ** 2, axis=-1)
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.mean(d2, axis=-1)) * 100.0
+
+
+def rmse_cm(est_m: np.ndarray, true_m: np.ndarray) -> float:
+    """RMS over frames and points of the 3D distance, centimetres; points with NaN are skipped.
+
+    Parameters
+    ----------
+    est_m, true_m : (F, N, 3) float
+        Estimated and true positions, metres.
+    """
+    d2 = np.sum((np.asarray(est_m, float) - np.asarray(true_m, float)) ** 2, axis=-1)
+    d2 = d2[np.isfinite(d2)]
+    return float(np.sqrt(np.mean(d2)) * 100.0) if d2.size else float("nan")
+
+
+def fill_forward(values: np.ndarray) -> np.ndarray:
+    """Rows with any NaN replaced by the last complete row (a live system keeps showing its last pose).
+
+    Leading incomplete rows stay NaN.
+    """
+    v = np.array(values, float, copy=True)
+    flat = v.reshape(len(v), -1)
+    last = None
+    for i in range(len(flat)):
+        if np.all(np.isfinite(flat[i])):
+            last = flat[i].copy()
+        elif last is not None:
+            flat[i] = last
+    return flat.reshape(v.shape)
+
+
+def shoulder_angle_deg(joints_m: np.ndarray, names: list[str] | tuple[str, ...], side: str = "r") -> np.ndarray:
+    """Angle ``(F,)`` in degrees between the upper arm and the trunk's downward axis.
+
+    Parameters
+    ----------
+    joints_m : (F, J, 3) float
+        Joint centres, metres.
+    names : sequence of str
+        Body names of the J joints; needs ``head`` (neck joint), ``abdomen`` (lumbar
+        joint), ``upperarm_<side>`` (shoulder) and ``forearm_<side>`` (elbow).
+    side : ``"l"`` or ``"r"``
+    """
+    names = list(names)
+    j = np.asarray(joints_m, float)
+    neck, lumbar = j[:, names.index("head")], j[:, names.index("abdomen")]
+    shoulder, elbow = j[:, names.index(f"upperarm_{side}")], j[:, names.index(f"forearm_{side}")]
+    down = lumbar - neck
+    arm = elbow - shoulder
+    with np.errstate(invalid="ignore"):
+        c = np.sum(down * arm, axis=1) / (np.linalg.norm(down, axis=1) * np.linalg.norm(arm, axis=1))
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def classification_roc(score: np.ndarray, predicted: np.ndarray, truth: np.ndarray,
+                       thresholds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Correct and incorrect classification rates of a thresholded classifier.
+
+    A pixel is classified when its ``score`` is below the threshold; it is then
+    *correct* if ``predicted == truth`` (a shirt colour) and *incorrect* otherwise
+    (a wrong colour, or any colour on a pixel that is not shirt).
+
+    Parameters
+    ----------
+    score : (N,) float
+        The classifier's score of its best class (lower is more confident).
+    predicted : (N,) int
+        The best class.
+    truth : (N,) int
+        True class, -1 for pixels that are not shirt.
+    thresholds : (T,) float
+
+    Returns
+    -------
+    correct : (T,) float
+        Correctly classified shirt pixels / all shirt pixels.
+    incorrect : (T,) float
+        Wrongly classified pixels / all pixels.
+    """
+    s = np.asarray(score, float).ravel()
+    p = np.asarray(predicted).ravel()
+    t = np.asarray(truth).ravel()
+    n_shirt = max(int((t >= 0).sum()), 1)
+    n = max(len(s), 1)
+    right = (p == t) & (t >= 0)
+    order = np.argsort(s)
+    s_sorted = s[order]
+    cum_right = np.concatenate([[0], np.cumsum(right[order])])
+    cum_wrong = np.concatenate([[0], np.cumsum(~right[order])])
+    k = np.searchsorted(s_sorted, np.asarray(thresholds, float), side="left")
+    return cum_right[k] / n_shirt, cum_wrong[k] / n

@@ -1,0 +1,273 @@
+"""Colour classification of the shirt region (steps 1 and 3 of seed 001, section 5.2).
+
+Step 1 (:func:`classify_gaussian`): white-balance the cropped pixels with ``W`` and give
+each the colour whose Gaussian is nearest in Mahalanobis distance, if nearer than
+``T = 3``; pixels outside the background-subtraction mask stay unclassified.  When
+fewer than 40 % of the foreground pixels get a colour the light has probably changed,
+and :func:`best_reference` re-classifies with every stored reference illumination and
+keeps the one that classifies most.
+
+Step 3 (:func:`classify_pose_assisted`): the rasterised blended pose is a prior; with
+``d(r, k)`` the distance (image pixels) from a pixel to the nearest pixel of colour
+``k`` in that id map (a distance transform per colour, ``cv2.distanceTransform``), a
+pixel takes ``argmin_k |W I - mu_k|_Sigma_k + C d(r, k)`` if below ``T = 5``, with
+``C = 6 / s`` and ``s`` the side of the shirt region.
+
+Both work on a *crop*: the square around the shirt found by the histogram search,
+area-resampled to a working resolution (:func:`crop_image`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel
+from mocap.shirt.shirt_model import CropView
+
+__all__ = [
+    "Classification",
+    "crop_view",
+    "crop_image",
+    "foreground_pixels",
+    "classify_gaussian",
+    "best_reference",
+    "distance_to_patches",
+    "classify_pose_assisted",
+    "assign_patches",
+    "patch_centroids",
+]
+
+
+@dataclass
+class Classification:
+    """A classified crop.
+
+    Attributes
+    ----------
+    colour : (h, w) int16
+        Colour id per working pixel, -1 for unclassified.
+    score : (h, w) float32
+        The winning colour's score (Mahalanobis distance, plus the pose prior in step 3).
+    best : (h, w) int16
+        The winning colour before thresholding (for ROC curves).
+    classified_fraction : float
+        Classified pixels over foreground pixels of the crop.
+    """
+
+    colour: np.ndarray
+    score: np.ndarray
+    best: np.ndarray
+    classified_fraction: float
+
+
+def crop_view(x: float, y: float, side: float, max_size: int) -> CropView:
+    """Square crop of ``side`` image pixels centred at ``(x, y)``, at most ``max_size`` working pixels."""
+    side_i = max(int(round(side)), 8)
+    size = min(side_i, int(max_size))
+    x0 = int(round(x - side_i / 2.0))
+    y0 = int(round(y - side_i / 2.0))
+    scale = side_i / size
+    return CropView(x0 + 0.5 * scale - 0.5, y0 + 0.5 * scale - 0.5, scale, size)
+
+
+def _crop_origin(view: CropView) -> tuple[int, int, int]:
+    side = int(round(view.scale * view.size))
+    x0 = int(round(view.x0 - 0.5 * view.scale + 0.5))
+    y0 = int(round(view.y0 - 0.5 * view.scale + 0.5))
+    return x0, y0, side
+
+
+def crop_image(image: np.ndarray, view: CropView, interpolation: int = cv2.INTER_AREA) -> np.ndarray:
+    """The crop of an image ``(H, W, ...)`` at working resolution ``(size, size, ...)``, zero outside the image."""
+    img = np.asarray(image)
+    x0, y0, side = _crop_origin(view)
+    H, W = img.shape[:2]
+    sub = np.zeros((side, side) + img.shape[2:], img.dtype)
+    xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + side, W), min(y0 + side, H)
+    if xb > xa and yb > ya:
+        sub[ya - y0: yb - y0, xa - x0: xb - x0] = img[ya:yb, xa:xb]
+    if side == view.size:
+        return sub
+    out = cv2.resize(sub, (view.size, view.size), interpolation=interpolation)
+    return out
+
+
+def _linear(work_rgb: np.ndarray) -> np.ndarray:
+    return SRGB_TO_LINEAR[work_rgb]
+
+
+def _other_wins(x: np.ndarray, other: ColourModel | None, W: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """Pixels ``(n, 3)`` where a not-shirt Gaussian is nearer than the best shirt colour's ``score``."""
+    if other is None or len(x) == 0:
+        return np.zeros(score.shape, bool)
+    return other.distances(x, W).min(axis=1) < score
+
+
+def foreground_pixels(linear_rgb: np.ndarray, foreground: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices of the crop's foreground pixels ``(n,)`` and their linear colours ``(n, 3)``."""
+    flat = np.asarray(linear_rgb, np.float32).reshape(-1, 3)
+    if foreground is None:
+        return np.arange(len(flat)), flat
+    idx = np.flatnonzero(np.asarray(foreground).ravel())
+    return idx, flat[idx]
+
+
+def _result(shape: tuple[int, int], idx: np.ndarray, best: np.ndarray, score: np.ndarray, threshold: float) -> Classification:
+    h, w = shape
+    ok = score < threshold
+    colour = np.full(h * w, -1, np.int16)
+    colour[idx[ok]] = best[ok]
+    full_score = np.full(h * w, np.inf, np.float32)
+    full_score[idx] = score
+    full_best = np.full(h * w, -1, np.int16)
+    full_best[idx] = best
+    return Classification(colour.reshape(h, w), full_score.reshape(h, w), full_best.reshape(h, w),
+                          float(ok.sum()) / max(len(idx), 1))
+
+
+def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
+                      threshold: float = 3.0, distances: np.ndarray | None = None,
+                      other: ColourModel | None = None) -> Classification:
+    """Step 1: nearest Gaussian after white balance, thresholded (``T``), foreground only.
+
+    Parameters
+    ----------
+    linear_rgb : (h, w, 3) float32
+        Linear RGB of the crop.
+    W : (3, 3) float
+    foreground : (h, w) bool or None
+        Only these pixels are classified (all if None).
+    distances : (n, K) float, optional
+        Precomputed ``model.distances`` of the foreground pixels (:func:`foreground_pixels`) with ``W``.
+    other : ColourModel, optional
+        Not-shirt colours of the session (:func:`mocap.shirt.colour_model.train_other_colours`):
+        a pixel nearer to one of them than to every shirt colour stays unclassified.
+    """
+    idx, x = foreground_pixels(linear_rgb, foreground)
+    D = model.distances(x, W) if distances is None else distances
+    best = D.argmin(axis=1).astype(np.int16)
+    score = np.take_along_axis(D, best[:, None].astype(np.int64), axis=1)[:, 0]
+    score = np.where(_other_wins(x, other, W, score), np.inf, score)
+    return _result(linear_rgb.shape[:2], idx, best, score, threshold)
+
+
+def best_reference(linear_rgb: np.ndarray, model: ColourModel, references: list[np.ndarray], foreground: np.ndarray | None,
+                   threshold: float = 3.0, other: ColourModel | None = None) -> tuple[int, Classification]:
+    """Re-classify with every reference white balance; the index and result of the one classifying most."""
+    best_i, best_c = -1, None
+    for i, Wr in enumerate(references):
+        c = classify_gaussian(linear_rgb, model, Wr, foreground, threshold, other=other)
+        if best_c is None or c.classified_fraction > best_c.classified_fraction:
+            best_i, best_c = i, c
+    return best_i, best_c
+
+
+def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int) -> np.ndarray:
+    """Distance ``(P, n)`` float32 (working pixels of the full crop) from pixels to the nearest pixel of each patch.
+
+    Parameters
+    ----------
+    patch_map : (r, r) int
+        Rendered patch ids of the crop at a reduced resolution ``r`` (the transforms
+        run there: the prior needs distances to a few pixels, not to a tenth of one).
+    idx : (n,) int
+        Flat indices of the query pixels in the ``full_size x full_size`` crop.
+
+    Returns
+    -------
+    (P, n) float32
+        ``inf`` for patches absent from the map.
+    """
+    r = patch_map.shape[0]
+    f = full_size / r
+    ys, xs = np.divmod(np.asarray(idx), full_size)
+    cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
+    out = np.full((n_patches, len(cell)), np.inf, np.float32)
+    for p in np.unique(patch_map[patch_map >= 0]):
+        dt = cv2.distanceTransform((patch_map != p).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        out[p] = dt.ravel()[cell] * np.float32(f)
+    return out
+
+
+def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, colour_distance_px: np.ndarray,
+                           prior_weight: float, foreground: np.ndarray | None, threshold: float = 5.0,
+                           distances: np.ndarray | None = None, other: ColourModel | None = None) -> Classification:
+    """Step 3: Mahalanobis distance plus ``prior_weight * d(r_b, k)``, thresholded at ``T``.
+
+    Parameters
+    ----------
+    colour_distance_px : (K, n) float
+        Distance in *image* pixels from each foreground pixel (:func:`foreground_pixels`
+        order) to the nearest pixel of each colour in the rendered blended pose
+        (``inf`` where a colour is not rendered).
+    prior_weight : float
+        ``C = 6 / s``.
+    other : ColourModel, optional
+        Not-shirt colours (see :func:`classify_gaussian`); they carry no pose prior.
+    """
+    idx, x = foreground_pixels(linear_rgb, foreground)
+    D = model.distances(x, W) if distances is None else distances
+    total = D + np.minimum(np.asarray(colour_distance_px, np.float32).T, 1e6) * np.float32(prior_weight)
+    best = total.argmin(axis=1).astype(np.int16)
+    score = np.take_along_axis(total, best[:, None].astype(np.int64), axis=1)[:, 0]
+    score = np.where(_other_wins(x, other, W, score), np.inf, score)
+    return _result(linear_rgb.shape[:2], idx, best, score, threshold)
+
+
+def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:
+    """Split each colour's pixels between its patches: the patch nearest in the rendered pose.
+
+    Parameters
+    ----------
+    colour : (h, w) int
+        Classified colour ids, -1 for none.
+    idx : (n,) int
+        Flat indices of the pixels ``patch_distance`` describes (the foreground).
+    patch_distance : (P, n) float
+        Distance from those pixels to each rendered patch (``inf`` if not rendered).
+    patch_colour : (P,) int
+
+    Returns
+    -------
+    (h, w) int16
+        Patch id per pixel, -1 where unclassified or where no patch of the colour is rendered.
+    """
+    P = len(patch_colour)
+    K = int(np.max(patch_colour)) + 1
+    members = [np.flatnonzero(np.asarray(patch_colour) == k) for k in range(K)]
+    m = max(len(x) for x in members)
+    table = np.full((K, m), -1, np.int64)
+    for k, x in enumerate(members):
+        table[k, : len(x)] = x
+    out = np.full(colour.size, -1, np.int16)
+    c = colour.ravel()[idx]
+    ok = c >= 0
+    if not ok.any():
+        return out.reshape(colour.shape)
+    sel = np.flatnonzero(ok)
+    cand = table[c[ok]]  # (n, m)
+    d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
+    j = d.argmin(axis=1)
+    r = np.arange(len(sel))
+    good = np.isfinite(d[r, j])
+    out[idx[sel[good]]] = cand[r, j][good]
+    return out.reshape(colour.shape)
+
+
+def patch_centroids(patch_map: np.ndarray, n_patches: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid ``(P, 2)`` (x, y working pixels; NaN if empty) and pixel count ``(P,)`` of every patch."""
+    h, w = patch_map.shape
+    p = patch_map.ravel().astype(np.int64)
+    ok = p >= 0
+    p = p[ok]
+    ys, xs = np.divmod(np.flatnonzero(ok), w)
+    n = np.bincount(p, minlength=n_patches).astype(float)
+    sx = np.bincount(p, weights=xs, minlength=n_patches)
+    sy = np.bincount(p, weights=ys, minlength=n_patches)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.stack([sx / n, sy / n], axis=1)
+    c[n == 0] = np.nan
+    return c, n.astype(int)

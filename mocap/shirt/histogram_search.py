@@ -1,0 +1,239 @@
+"""Locating the shirt by the uniformity of local chromaticity histograms (section 4 of seed 001).
+
+The chromaticity of a pixel is ``(r, g, b) / (r + g + b)``; its histogram over an
+``s x s`` window has 100 bins (a 10 x 10 grid over ``(r, g)``; only the bins with
+``r + g <= 1`` can be reached, and only those are stored).  A window of the
+multi-coloured shirt has a *uniform* histogram, other regions a peaky one; uniformity
+is ``u(h) = sum_i min(h_i, tau)`` with ``tau = 0.1``.  The shirt's position and scale
+are the average of the window centres and sizes weighted by
+``w = exp(-(u - u_max)^2 / u_sigma^2)``, ``u_sigma = u_max / 10``.
+
+Histograms are sampled every 6 pixels at six scales from an *integral histogram*
+(Porikli 2005): the image is reduced to half size (``cv2.resize``, area averaging),
+cut into 3 x 3-pixel cells (6 x 6 original pixels), the cells' bin counts are
+summed cumulatively over rows and columns, and every window's histogram is four
+look-ups.  Dark pixels (``r + g + b`` below ``min_brightness``) have no reliable
+chromaticity and count in no bin (windows are normalised by their area, so dark
+regions are not uniform).  An optional foreground mask (background subtraction)
+restricts both the counted pixels and the window centres.
+
+:func:`naive_search` computes the same windows without the integral histogram (one
+``numpy.bincount`` per window) and is the reference of ``simbench bench shirt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mocap.errors import MocapInputError
+
+__all__ = ["HistogramSearchParams", "ShirtLocation", "chromaticity_bins", "search_shirt", "naive_search"]
+
+_REDUCE = 2  # the image is halved before binning
+
+
+@dataclass(frozen=True)
+class HistogramSearchParams:
+    """Settings of the histogram search (defaults: the paper's).
+
+    Attributes
+    ----------
+    bins_per_axis : int
+        The chromaticity grid is ``bins_per_axis**2`` bins over ``(r, g)`` (100).
+    tau : float
+        Cap of each bin in the uniformity ``u(h) = sum_i min(h_i, tau)``.
+    stride_px : int
+        Spacing of the sampled window centres, original pixels (a multiple of 2).
+    scales_px : tuple[int, ...]
+        Window sides, original pixels (multiples of ``stride_px``).
+    u_sigma_fraction : float
+        ``u_sigma = u_sigma_fraction * u_max``.
+    min_brightness : int
+        Pixels with ``r + g + b`` (8-bit codes) below this count in no bin.
+    """
+
+    bins_per_axis: int = 10
+    tau: float = 0.1
+    stride_px: int = 6
+    scales_px: tuple[int, ...] = (48, 72, 96, 132, 180, 240)
+    u_sigma_fraction: float = 0.1
+    min_brightness: int = 40
+
+    def __post_init__(self) -> None:
+        if self.stride_px % _REDUCE or self.stride_px <= 0:
+            raise MocapInputError(f"HistogramSearchParams.stride_px = {self.stride_px}; use a positive multiple of {_REDUCE}")
+        if not self.scales_px or any(s % self.stride_px or s <= 0 for s in self.scales_px):
+            raise MocapInputError(f"HistogramSearchParams.scales_px = {self.scales_px}; give positive multiples of stride_px = {self.stride_px}")
+        if not (0.0 < self.tau <= 1.0):
+            raise MocapInputError(f"HistogramSearchParams.tau = {self.tau}; use a value in (0, 1]")
+
+
+@dataclass(frozen=True)
+class ShirtLocation:
+    """Where the shirt is: window centre ``(x, y)`` and side ``s`` in pixels, and the best uniformity."""
+
+    x: float
+    y: float
+    s: float
+    u_max: float
+
+
+def _bin_table(n: int) -> tuple[np.ndarray, int]:
+    """Map of the ``n x n`` grid bin ``rb * n + gb`` to a compact index of the reachable bins (-1 if unreachable)."""
+    rb, gb = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    reachable = (rb + gb) <= n
+    table = np.full(n * n, -1, np.int64)
+    table[reachable.ravel()] = np.arange(int(reachable.sum()))
+    return table, int(reachable.sum())
+
+
+def chromaticity_bins(image: np.ndarray, params: HistogramSearchParams, mask: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """Compact chromaticity bin ``(H, W)`` int64 of every pixel, -1 for dark or masked-out ones; and the bin count."""
+    img = np.asarray(image)
+    n = params.bins_per_axis
+    table, nb = _bin_table(n)
+    c = img.astype(np.int32)
+    s = c[..., 0] + c[..., 1] + c[..., 2]
+    ok = s >= params.min_brightness
+    if mask is not None:
+        ok &= mask
+    ss = np.maximum(s, 1)
+    rb = np.minimum(c[..., 0] * n // ss, n - 1)
+    gb = np.minimum(c[..., 1] * n // ss, n - 1)
+    b = table[rb * n + gb]
+    return np.where(ok, b, -1), nb
+
+
+def _cells(image: np.ndarray, params: HistogramSearchParams, foreground: np.ndarray | None):
+    """Half-size bins, cell histogram counts ``(ny, nx, nb)`` and the foreground fraction per cell."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
+        raise MocapInputError(f"histogram search: expected an (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
+    H, W = img.shape[:2]
+    small = cv2.resize(img, (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA)
+    fg_small = None
+    if foreground is not None:
+        fg_small = cv2.resize(np.asarray(foreground, np.uint8), (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA) > 0
+    c = params.stride_px // _REDUCE
+    h, w = small.shape[:2]
+    ny, nx = h // c, w // c
+    small = small[: ny * c, : nx * c]
+    bins, nb = chromaticity_bins(small, params, None if fg_small is None else fg_small[: ny * c, : nx * c])
+    cy = (np.arange(ny * c) // c)[:, None]
+    cx = (np.arange(nx * c) // c)[None, :]
+    cell = (cy * nx + cx)
+    ok = bins >= 0
+    counts = np.bincount((cell[ok] * nb + bins[ok]).ravel(), minlength=ny * nx * nb).reshape(ny, nx, nb).astype(np.float32)
+    fg_cells = None
+    if fg_small is not None:
+        f = fg_small[: ny * c, : nx * c].reshape(ny, c, nx, c).mean(axis=(1, 3))
+        fg_cells = f >= 0.5
+    return counts, fg_cells, c
+
+
+def _weighted_location(centres: list[np.ndarray], sizes: list[np.ndarray], us: list[np.ndarray],
+                       params: HistogramSearchParams) -> ShirtLocation | None:
+    if not us or sum(u.size for u in us) == 0:
+        return None
+    u = np.concatenate(us)
+    xy = np.concatenate(centres)
+    s = np.concatenate(sizes)
+    u_max = float(u.max())
+    if u_max <= 0:
+        return None
+    sigma = params.u_sigma_fraction * u_max
+    w = np.exp(-((u - u_max) ** 2) / sigma**2)
+    w /= w.sum()
+    return ShirtLocation(float(w @ xy[:, 0]), float(w @ xy[:, 1]), float(w @ s), u_max)
+
+
+def search_shirt(image: np.ndarray, params: HistogramSearchParams = HistogramSearchParams(),
+                 foreground: np.ndarray | None = None) -> ShirtLocation | None:
+    """Find the shirt in one RGB frame (integral histogram).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 RGB
+    params : HistogramSearchParams
+    foreground : (H, W) bool, optional
+        Background-subtraction mask: only foreground pixels are counted, and only
+        windows centred on foreground cells are scored.
+
+    Returns
+    -------
+    ShirtLocation or None
+        None when no window has any colour (e.g. an empty or black frame).
+    """
+    counts, fg_cells, c = _cells(image, params, foreground)
+    ny, nx, nb = counts.shape
+    integral = np.zeros((ny + 1, nx + 1, nb), np.float32)
+    np.cumsum(np.cumsum(counts, axis=0), axis=1, out=integral[1:, 1:])
+    cell_px = c * _REDUCE
+    centres, sizes, us = [], [], []
+    for s_px in params.scales_px:
+        m = s_px // cell_px
+        if m > ny or m > nx:
+            continue
+        area = float((m * c) ** 2)
+        if fg_cells is None:
+            S = integral[m:, m:] - integral[:-m, m:] - integral[m:, :-m] + integral[:-m, :-m]
+            np.minimum(S, params.tau * area, out=S)
+            u = S.sum(axis=2).ravel() / area
+            iy, ix = np.divmod(np.arange(u.size), nx - m + 1)
+        else:
+            half = m // 2
+            sel = fg_cells[half: half + ny - m + 1, half: half + nx - m + 1]
+            iy, ix = np.nonzero(sel)
+            if iy.size == 0:
+                continue
+            S = integral[iy + m, ix + m] - integral[iy, ix + m] - integral[iy + m, ix] + integral[iy, ix]
+            np.minimum(S, params.tau * area, out=S)
+            u = S.sum(axis=1) / area
+        # window (iy, ix) covers cells iy..iy+m-1: centre in original pixels
+        centres.append(np.stack([(ix + m / 2.0) * cell_px - 0.5, (iy + m / 2.0) * cell_px - 0.5], axis=1))
+        sizes.append(np.full(u.size, float(m * cell_px)))
+        us.append(u)
+    return _weighted_location(centres, sizes, us, params)
+
+
+def naive_search(image: np.ndarray, params: HistogramSearchParams = HistogramSearchParams(),
+                 foreground: np.ndarray | None = None) -> ShirtLocation | None:
+    """The same search with one histogram per window counted directly (no integral histogram).
+
+    Gives the result of :func:`search_shirt` (up to float rounding); it exists as the
+    speed reference of ``simbench bench shirt``.
+    """
+    img = np.asarray(image)
+    H, W = img.shape[:2]
+    small = cv2.resize(img, (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA)
+    fg_small = None
+    if foreground is not None:
+        fg_small = cv2.resize(np.asarray(foreground, np.uint8), (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA) > 0
+    c = params.stride_px // _REDUCE
+    ny, nx = small.shape[0] // c, small.shape[1] // c
+    small = small[: ny * c, : nx * c]
+    bins, nb = chromaticity_bins(small, params, None if fg_small is None else fg_small[: ny * c, : nx * c])
+    fg_cells = None
+    if fg_small is not None:
+        fg_cells = fg_small[: ny * c, : nx * c].reshape(ny, c, nx, c).mean(axis=(1, 3)) >= 0.5
+    cell_px = c * _REDUCE
+    centres, sizes, us = [], [], []
+    for s_px in params.scales_px:
+        m = s_px // cell_px
+        if m > ny or m > nx:
+            continue
+        area = float((m * c) ** 2)
+        half = m // 2
+        for iy in range(ny - m + 1):
+            for ix in range(nx - m + 1):
+                if fg_cells is not None and not fg_cells[iy + half, ix + half]:
+                    continue
+                win = bins[iy * c: (iy + m) * c, ix * c: (ix + m) * c]
+                h = np.bincount(win[win >= 0], minlength=nb).astype(np.float32)
+                us.append(np.array([np.minimum(h, params.tau * area).sum() / area]))
+                centres.append(np.array([[(ix + m / 2.0) * cell_px - 0.5, (iy + m / 2.0) * cell_px - 0.5]]))
+                sizes.append(np.array([float(m * cell_px)]))
+    return _weighted_location(centres, sizes, us, params)

@@ -1,0 +1,378 @@
+"""Pose from patch centroids: step 4 of seed 001 (and the 6-DoF global fit of step 2), with Pinocchio.
+
+Energy (section 5.2, step 4)::
+
+    E(q) = sum_{i,k} |c*_ik(q) - c_ik|^2_{Sigma_c} + |q - q_b|^2_{Sigma_b} + |q - q_h|^2_{Sigma_p}
+
+``c_ik`` is the centroid of patch ``k`` in the classified id map of camera ``i``;
+``c*_ik(q)`` the centroid of the same patch in the id map of pose ``q``, modelled as the
+pixel-weighted mean of the projections of one anchor point per (patch, body) — the
+mean body-frame position of the faces the rendered pose shows in that patch
+(:meth:`mocap.shirt.shirt_model.ShirtModel.patch_anchors`).  ``q - q_b`` is
+``pinocchio.difference`` (17 tangent components: root twist in the root frame, then
+hinges).  Centroid residuals are measured in units of the shirt's size in the image
+(the side of its tiny-map square), so that one trained ``Sigma_c`` serves any distance.
+
+The covariances are trained as in the paper (after Wang & Popovic 2009): on a
+ground-truth sequence, replace ``q`` by the true pose (and ``q_h`` by the true previous
+pose) and take the covariance of each term (:func:`train_priors`).
+
+Solver: Levenberg-Marquardt on the whitened residuals with a Huber weight on each
+centroid (a misclassified patch must not drag the pose), steps through
+``pinocchio.integrate``, hinges clipped to the joint limits.  Jacobians are Pinocchio's
+frame Jacobians (``LOCAL_WORLD_ALIGNED``) moved to the anchor points, times the
+pinhole projection's derivative.  The loop is hand-written rather than
+``scipy.optimize.least_squares`` because the root lives on SE(3) and because a frame
+needs a handful of 17 x 17 solves, far below scipy's per-call overhead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pinocchio as pin
+
+from mocap.calibration import Camera
+from mocap.errors import InputFileError, MocapInputError
+from mocap.shirt.shirt_model import UPPER_NV, ShirtKinematics
+
+__all__ = ["Constraints", "IKPriors", "ShirtIK", "IKResult", "train_priors"]
+
+
+@dataclass
+class Constraints:
+    """2D patch-centroid constraints of one frame, in every camera.
+
+    Attributes
+    ----------
+    camera : (n,) int
+        Camera index of each constraint.
+    patch : (n,) int
+    target_px : (n, 2) float
+        Measured centroid, image pixels.
+    sqrt_info : (n, 2, 2) float
+        Whitening of the residual in pixels (``L^-1`` of its covariance).
+    size_px : (n,) float
+        The shirt's size in that camera's image (side of its tiny-map square), pixels.
+    anchor_of : (A,) int
+        Constraint index of each anchor.
+    anchor_body : (A,) int
+        Index into the model's geometry bodies.
+    anchor_point_m : (A, 3) float
+        Anchor in its body's frame.
+    anchor_weight : (A,) float
+        Sums to 1 over the anchors of a constraint.
+    """
+
+    camera: np.ndarray
+    patch: np.ndarray
+    target_px: np.ndarray
+    sqrt_info: np.ndarray
+    size_px: np.ndarray
+    anchor_of: np.ndarray
+    anchor_body: np.ndarray
+    anchor_point_m: np.ndarray
+    anchor_weight: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.camera)
+
+    @classmethod
+    def empty(cls) -> "Constraints":
+        z = np.zeros(0, int)
+        return cls(z, z, np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), z, z, np.zeros((0, 3)), np.zeros(0))
+
+    @classmethod
+    def concatenate(cls, parts: list["Constraints"]) -> "Constraints":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls.empty()
+        offs = np.cumsum([0] + [len(p) for p in parts])[:-1]
+        return cls(
+            np.concatenate([p.camera for p in parts]), np.concatenate([p.patch for p in parts]),
+            np.concatenate([p.target_px for p in parts]), np.concatenate([p.sqrt_info for p in parts]),
+            np.concatenate([p.size_px for p in parts]),
+            np.concatenate([p.anchor_of + o for p, o in zip(parts, offs)]), np.concatenate([p.anchor_body for p in parts]),
+            np.concatenate([p.anchor_point_m for p in parts]), np.concatenate([p.anchor_weight for p in parts]),
+        )
+
+    def subset(self, keep: np.ndarray) -> "Constraints":
+        keep = np.asarray(keep, bool)
+        new = -np.ones(len(keep), int)
+        new[keep] = np.arange(int(keep.sum()))
+        a = keep[self.anchor_of]
+        return Constraints(self.camera[keep], self.patch[keep], self.target_px[keep], self.sqrt_info[keep], self.size_px[keep],
+                           new[self.anchor_of[a]], self.anchor_body[a], self.anchor_point_m[a], self.anchor_weight[a])
+
+
+@dataclass(frozen=True, eq=False)
+class IKPriors:
+    """Trained covariances of the three energy terms.
+
+    Attributes
+    ----------
+    centroid_cov : (P, 2, 2) float
+        Covariance of each patch's centroid residual, in units of the shirt's image size.
+    blend_std : (17,) float
+        Standard deviation of ``difference(q_b, q_true)`` per tangent component.
+    motion_std : (17,) float
+        Standard deviation of ``difference(q_true_prev, q_true)`` (one frame).
+    n_frames : int
+        Training frames behind the numbers.
+    """
+
+    centroid_cov: np.ndarray
+    blend_std: np.ndarray
+    motion_std: np.ndarray
+    n_frames: int = 0
+
+    def __post_init__(self) -> None:
+        if np.asarray(self.blend_std).shape != (UPPER_NV,) or np.asarray(self.motion_std).shape != (UPPER_NV,):
+            raise MocapInputError(f"IKPriors: blend_std and motion_std must have {UPPER_NV} values")
+        if np.any(~np.isfinite(self.blend_std)) or np.any(np.asarray(self.blend_std) <= 0) or np.any(np.asarray(self.motion_std) <= 0):
+            raise MocapInputError("IKPriors: standard deviations must be finite and positive")
+
+    def centroid_sqrt_info(self, patch: np.ndarray, shirt_size_px: float) -> np.ndarray:
+        """``(n, 2, 2)`` whitening of pixel residuals of the given patches for a shirt of this image size."""
+        L = np.linalg.cholesky(self.centroid_cov[np.asarray(patch)])
+        return np.linalg.inv(L) / float(shirt_size_px)
+
+    def save(self, path: str | Path) -> None:
+        np.savez(path, centroid_cov=self.centroid_cov, blend_std=self.blend_std, motion_std=self.motion_std,
+                 n_frames=np.array(self.n_frames))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "IKPriors":
+        path = Path(path)
+        if not path.is_file():
+            raise InputFileError(path, "IK priors not found", "train them on a ground-truth sequence (simbench does it for its runs)")
+        with np.load(path) as z:
+            return cls(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
+
+
+def train_priors(patch: np.ndarray, residual: np.ndarray, blend_error: np.ndarray, motion: np.ndarray, n_patches: int,
+                 n_frames: int, floor_std: float | np.ndarray = 1e-3, floor_centroid: float = 0.005) -> IKPriors:
+    """Covariances of the energy terms from ground truth (Wang & Popovic's training).
+
+    Parameters
+    ----------
+    patch : (m,) int
+        Patch of each centroid residual.
+    residual : (m, 2) float
+        ``c*(q_true) - c`` in units of the shirt's image size.
+    blend_error : (f, 17) float
+        ``difference(q_b, q_true)`` per frame.
+    motion : (g, 17) float
+        ``difference(q_true_prev, q_true)`` per pair of consecutive frames.
+    floor_std : float or (17,) float
+        Lower bound of the standard deviations (m or rad per tangent component): a
+        training take that never moves a joint must not freeze it.
+    floor_centroid : float
+        Lower bound of the centroid standard deviation (shirt sizes).
+    """
+    patch = np.asarray(patch, int)
+    res = np.asarray(residual, float)
+    ok = np.all(np.isfinite(res), axis=1)
+    patch, res = patch[ok], res[ok]
+    pooled = _trimmed_cov(res) if len(res) > 10 else np.eye(2) * floor_centroid**2
+    pooled = pooled + np.eye(2) * floor_centroid**2
+    cov = np.repeat(pooled[None], n_patches, axis=0)
+    for p in range(n_patches):
+        r = res[patch == p]
+        if len(r) >= 20:
+            # shrink towards the pooled covariance (few samples per patch)
+            a = len(r) / (len(r) + 20.0)
+            cov[p] = a * (_trimmed_cov(r) + np.eye(2) * floor_centroid**2) + (1 - a) * pooled
+    be = np.asarray(blend_error, float)
+    be = be[np.all(np.isfinite(be), axis=1)]
+    mo = np.asarray(motion, float)
+    mo = mo[np.all(np.isfinite(mo), axis=1)]
+    bstd = np.sqrt(np.mean(be**2, axis=0)) if len(be) else np.full(UPPER_NV, 1.0)
+    mstd = np.sqrt(np.mean(mo**2, axis=0)) if len(mo) else np.full(UPPER_NV, 1.0)
+    floor = np.broadcast_to(np.asarray(floor_std, float), (UPPER_NV,))
+    return IKPriors(cov, np.maximum(bstd, floor), np.maximum(mstd, floor), int(n_frames))
+
+
+def _trimmed_cov(r: np.ndarray, k: float = 3.0) -> np.ndarray:
+    """Covariance ``(2, 2)`` of the residuals within ``k`` robust standard deviations (1.4826 MAD) of the median.
+
+    Centroid residuals have heavy tails (a patch assigned to the wrong one of its colour);
+    the IK down-weights those with its Huber loss, so the covariance describes the rest.
+    """
+    med = np.median(r, axis=0)
+    mad = 1.4826 * np.median(np.abs(r - med), axis=0)
+    keep = np.all(np.abs(r - med) <= k * np.maximum(mad, 1e-9), axis=1)
+    return np.cov(r[keep].T) if keep.sum() > 5 else np.cov(r.T)
+
+
+@dataclass
+class IKResult:
+    q: np.ndarray
+    cost: float
+    iterations: int
+    centroid_rms_px: float
+
+
+@dataclass
+class _Prior:
+    q_ref: np.ndarray
+    inv_std: np.ndarray  # (nv,)
+
+
+class ShirtIK:
+    """Levenberg-Marquardt on patch-centroid constraints and pose priors.
+
+    Parameters
+    ----------
+    kin : ShirtKinematics
+    body_names : tuple[str, ...]
+        Bodies indexed by ``Constraints.anchor_body`` (the geometry's bodies).
+    cameras : list[Camera]
+    huber : float
+        Whitened residual beyond which a centroid's weight falls off (Huber).
+    """
+
+    def __init__(self, kin: ShirtKinematics, body_names: tuple[str, ...], cameras: list[Camera], huber: float = 2.5) -> None:
+        self.kin = kin
+        self.model = kin.model
+        self.data = kin.data
+        self.frames = [kin.frame_id(b) for b in body_names]
+        self.cameras = list(cameras)
+        self.huber = float(huber)
+        self._pinhole = [bool(np.all(c.dist == 0)) for c in self.cameras]
+
+    # ------------------------------------------------------------------ model
+    def _anchors_world(self, q: np.ndarray, cons: Constraints, jacobians: bool):
+        pin.forwardKinematics(self.model, self.data, q)
+        if jacobians:
+            pin.computeJointJacobians(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        used = np.unique(cons.anchor_body)
+        R = {}
+        p = {}
+        J = {}
+        for b in used:
+            f = self.frames[b]
+            M = self.data.oMf[f]
+            R[b], p[b] = M.rotation, M.translation
+            if jacobians:
+                J[b] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        A = len(cons.anchor_body)
+        X = np.empty((A, 3))
+        JX = np.empty((A, 3, self.model.nv)) if jacobians else None
+        for b in used:
+            sel = cons.anchor_body == b
+            r = cons.anchor_point_m[sel] @ R[b].T
+            X[sel] = r + p[b]
+            if jacobians:
+                Jl, Ja = J[b][:3], J[b][3:]
+                # v_point = v_origin + w x r = Jl - [r]x Ja
+                cross = np.zeros((len(r), 3, 3))
+                cross[:, 0, 1], cross[:, 0, 2] = -r[:, 2], r[:, 1]
+                cross[:, 1, 0], cross[:, 1, 2] = r[:, 2], -r[:, 0]
+                cross[:, 2, 0], cross[:, 2, 1] = -r[:, 1], r[:, 0]
+                JX[sel] = Jl[None] - cross @ Ja
+        return X, JX
+
+    def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False):
+        """Model centroids ``(n, 2)`` px of the constraints at ``q`` (and their Jacobians ``(n, 2, nv)``)."""
+        X, JX = self._anchors_world(q, cons, jacobians)
+        n = len(cons)
+        out = np.zeros((n, 2))
+        Jout = np.zeros((n, 2, self.model.nv)) if jacobians else None
+        cam_of_anchor = cons.camera[cons.anchor_of]
+        for ci, cam in enumerate(self.cameras):
+            sel = cam_of_anchor == ci
+            if not sel.any():
+                continue
+            Xc = X[sel] @ cam.R.T + cam.t
+            z = np.maximum(Xc[:, 2], 1e-3)
+            if self._pinhole[ci]:
+                uv = Xc[:, :2] / z[:, None] * np.array([cam.K[0, 0], cam.K[1, 1]]) + cam.K[:2, 2]
+                uv[:, 0] += cam.K[0, 1] * Xc[:, 1] / z
+            else:
+                uv = cv2.projectPoints(X[sel], cam.rvec, cam.t, cam.K, cam.dist)[0].reshape(-1, 2)
+            w = cons.anchor_weight[sel]
+            idx = cons.anchor_of[sel]
+            np.add.at(out, idx, w[:, None] * uv)
+            if jacobians:
+                fx, fy = cam.K[0, 0], cam.K[1, 1]
+                Jp = np.zeros((len(z), 2, 3))
+                Jp[:, 0, 0] = fx / z
+                Jp[:, 0, 2] = -fx * Xc[:, 0] / z**2
+                Jp[:, 1, 1] = fy / z
+                Jp[:, 1, 2] = -fy * Xc[:, 1] / z**2
+                Ja = Jp @ cam.R @ JX[sel]  # (a, 2, nv)
+                np.add.at(Jout, idx, w[:, None, None] * Ja)
+        return out, Jout
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, q0: np.ndarray, cons: Constraints, priors: list[tuple[np.ndarray, np.ndarray]] = (),
+              active: np.ndarray | None = None, iterations: int = 10, damping: float = 1e-3) -> IKResult:
+        """Minimise the energy from ``q0``.
+
+        Parameters
+        ----------
+        q0 : (18,) float
+        cons : Constraints
+        priors : list of (q_ref (18,), std (17,))
+            Terms ``|difference(q_ref, q) / std|^2``.
+        active : (17,) bool, optional
+            Tangent components that may move (default all; the 6-DoF fit uses the root's).
+        """
+        nv = self.model.nv
+        act = np.ones(nv, bool) if active is None else np.asarray(active, bool)
+        pri = [_Prior(np.asarray(qr, float), 1.0 / np.asarray(sd, float)) for qr, sd in priors]
+        q = self.kin.clamp(np.asarray(q0, float))
+
+        def residuals(qc: np.ndarray, jac: bool):
+            c, Jc = self.centroids(qc, cons, jac)
+            e = c - cons.target_px
+            r = np.einsum("nij,nj->ni", cons.sqrt_info, e)  # (n, 2) whitened
+            norm = np.linalg.norm(r, axis=1)
+            w = np.where(norm > self.huber, np.sqrt(self.huber / np.maximum(norm, 1e-12)), 1.0)
+            rs = [(r * w[:, None]).ravel()]
+            Js = [(np.einsum("nij,njk->nik", cons.sqrt_info, Jc) * w[:, None, None]).reshape(-1, nv)] if jac else []
+            for p in pri:
+                d = pin.difference(self.model, p.q_ref, qc)
+                rs.append(d * p.inv_std)
+                if jac:
+                    Jd = pin.dDifference(self.model, p.q_ref, qc, pin.ArgumentPosition.ARG1)
+                    Js.append(Jd * p.inv_std[:, None])
+            rr = np.concatenate(rs)
+            cost = float(rr @ rr)
+            return rr, (np.vstack(Js) if jac else None), cost, e
+
+        r, J, cost, e = residuals(q, True)
+        lam = damping
+        it = 0
+        for it in range(1, iterations + 1):
+            Ja = J[:, act]
+            H = Ja.T @ Ja
+            g = Ja.T @ r
+            improved = False
+            for _ in range(6):
+                A = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(H)))
+                try:
+                    step = -np.linalg.solve(A, g)
+                except np.linalg.LinAlgError:
+                    lam *= 10
+                    continue
+                dq = np.zeros(nv)
+                dq[act] = step
+                q_new = self.kin.clamp(pin.integrate(self.model, q, dq))
+                r_new, _, cost_new, e_new = residuals(q_new, False)
+                if cost_new < cost:
+                    q, cost = q_new, cost_new
+                    lam = max(lam / 3, 1e-7)
+                    improved = True
+                    break
+                lam *= 8
+            if not improved or np.linalg.norm(step) < 1e-6:
+                break
+            r, J, cost, e = residuals(q, True)
+        rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
+        return IKResult(q, cost, it, rms)

@@ -1,0 +1,598 @@
+"""The colour-shirt capture pipeline of seed 001, frame by frame, and the simpler baseline.
+
+Per synchronised frame of all cameras (Fig. 4 of the paper):
+
+0. background subtraction (MOG2, coarse; :mod:`mocap.shirt.background`);
+1. histogram search for the shirt (:mod:`mocap.shirt.histogram_search`), crop, white
+   balance with ``W`` and Gaussian classification, ``T = 3``; under 40 % classified
+   foreground, search the reference illuminations (:mod:`mocap.shirt.classify`);
+2. the classified region as a tiny 40x40 map, its 10 nearest database poses in every
+   camera (:mod:`mocap.shirt.pose_database`), blended; the root's position and
+   orientation by a 6-DoF fit of the blended pose's patch centroids in every camera;
+3. pose-assisted classification: the blended pose rasterised in every camera is a
+   prior (distance transform per colour, ``C = 6 / s``, ``T = 5``);
+4. inverse kinematics on the patch centroids with priors towards the blended and the
+   previous pose (:mod:`mocap.shirt.ik`);
+5. white balance ``W*`` re-estimated under the final pose's id map; added to the
+   reference illuminations when farther than 0.5 (Frobenius) from all of them.
+
+The *baseline* (akin to Wang & Popovic 2009, as the paper compares): steps 0-2 and
+centroid IK started from the blended pose, but no pose prior (no step 3, no prior
+terms in the IK) and no adaptive white balance (``W`` stays the one of the labelled
+first frame; no reference search, no step 5).
+
+Every stage is timed (``FrameEstimate.timings_ms``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+import pinocchio as pin
+
+from mocap.calibration import Calibration
+from mocap.errors import MocapInputError
+from mocap.shirt.background import BackgroundModel, BackgroundParams
+from mocap.shirt.classify import (Classification, assign_patches, best_reference, classify_gaussian,
+                                  classify_pose_assisted, crop_image, crop_view, distance_to_patches, foreground_pixels,
+                                  patch_centroids)
+from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, labelled_colour_means, solve_white_balance
+from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation, search_shirt
+from mocap.shirt.ik import Constraints, IKPriors, ShirtIK
+from mocap.shirt.pose_database import Neighbours, PoseDatabase, TinyMap, blend_poses, blend_weights, tiny_id_map
+from mocap.shirt.shirt_model import UPPER_NQ, UPPER_NV, CropView, ShirtModel, look_at_view
+
+__all__ = [
+    "STAGES",
+    "ShirtPipelineParams",
+    "CameraObservation",
+    "FrameEstimate",
+    "ShirtTracker",
+    "initial_white_balance",
+]
+
+STAGES: tuple[str, ...] = ("background", "histogram_search", "classify", "database", "global_fit", "pose_assisted", "ik",
+                           "white_balance")
+"""Timed stages of a frame, in order."""
+
+_CANONICAL_SIZE = 64  # px: orthographic render of the blended pose for the 6-DoF fit
+_CANONICAL_MARGIN = 1.15
+
+
+@dataclass(frozen=True)
+class ShirtPipelineParams:
+    """Settings of the pipeline (defaults: the paper's values where it gives them).
+
+    Attributes
+    ----------
+    histogram : HistogramSearchParams
+    background : BackgroundParams or None
+        None: no background subtraction.
+    crop_factor : float
+        The classified crop is this many times the histogram search's scale ``s``.
+    work_size : int
+        Working resolution of the crop (pixels per side, at most).
+    wb_size : int
+        Resolution of the final pose's id map for the white-balance update.
+    render_size : int
+        Resolution of the blended pose's id map in each crop (step 3's distance
+        transforms and the IK's anchors).
+    gaussian_threshold, assisted_threshold : float
+        ``T`` of step 1 (3) and step 3 (5).
+    poor_fraction : float
+        Step 1 classifying less than this fraction of the foreground triggers the reference
+        search (0.4).  The crop here holds the whole upper body with head and hips, not only
+        the shirt, so the fraction is taken relative to the one of the first (labelled)
+        frame.
+    prior_c : float
+        ``C = prior_c / s`` (6).
+    neighbours : int
+        Database neighbours per camera (10).
+    pose_prior : bool
+        Step 3 and the IK's prior terms (off in the baseline).
+    adaptive_white_balance : bool
+        Step 5 and the reference-illumination search (off in the baseline).
+    reference_distance : float
+        Frobenius distance for a new reference illumination (0.5).
+    ik_iterations, global_iterations : int
+        Levenberg-Marquardt iterations of step 4 and of the 6-DoF fit.
+    min_patch_pixels : int
+        A patch needs this many classified working pixels to constrain the IK.
+    correspondence_passes : int
+        Step 4 solves, each after splitting the colours into patches with the pose of
+        the previous solve (the first uses the blended pose, as the paper; more passes
+        are an addition for a database far from the pose).
+    global_fit_std : float
+        Assumed error of the blended pose's centroids, in shirt sizes (6-DoF fit weights).
+    baseline_damping_std : float
+        Baseline only: weak pull (rad / m) towards the blended pose that keeps the
+        unconstrained directions of the IK determined (plain damping).
+    keep_classification : bool
+        Keep per-camera classification maps in the results (for ROC curves).
+    """
+
+    histogram: HistogramSearchParams = HistogramSearchParams()
+    background: BackgroundParams | None = BackgroundParams()
+    crop_factor: float = 6.0
+    work_size: int = 144
+    wb_size: int = 64
+    render_size: int = 72
+    gaussian_threshold: float = 3.0
+    assisted_threshold: float = 5.0
+    poor_fraction: float = 0.4
+    prior_c: float = 6.0
+    neighbours: int = 10
+    pose_prior: bool = True
+    adaptive_white_balance: bool = True
+    reference_distance: float = 0.5
+    ik_iterations: int = 8
+    global_iterations: int = 10
+    min_patch_pixels: int = 5
+    correspondence_passes: int = 2
+    global_fit_std: float = 0.03
+    baseline_damping_std: float = 3.0
+    keep_classification: bool = False
+
+    def __post_init__(self) -> None:
+        if self.crop_factor <= 0 or self.work_size < 16 or self.wb_size < 8 or self.neighbours < 1:
+            raise MocapInputError(f"ShirtPipelineParams: crop_factor, work_size (>= 16), wb_size (>= 8) and neighbours (>= 1) must be positive; got {self}")
+
+    def baseline(self) -> "ShirtPipelineParams":
+        """The baseline's settings: no pose prior, no adaptive white balance."""
+        return replace(self, pose_prior=False, adaptive_white_balance=False)
+
+
+@dataclass
+class CameraObservation:
+    """What one camera contributed to a frame (kept with ``keep_classification``)."""
+
+    location: ShirtLocation | None = None
+    view: CropView | None = None
+    step1: Classification | None = None
+    final: Classification | None = None
+    tiny: TinyMap | None = None
+    neighbours: Neighbours | None = None
+    ray_rotation: np.ndarray | None = None
+    W: np.ndarray | None = None
+    foreground: np.ndarray | None = None
+    n_constraints: int = 0
+
+
+@dataclass
+class FrameEstimate:
+    """The pipeline's output for one frame.
+
+    Attributes
+    ----------
+    q : (18,) float
+        Upper-body configuration (:mod:`mocap.shirt.shirt_model`); NaN when the frame failed.
+    q_blend : (18,) float
+        The blended database pose after the 6-DoF fit (NaN if none).
+    q_prior : (18,) float or None
+        The pose whose id map steps 3 and 4 used (the blend, or the previous pose).
+    classified_fraction : (C,) float
+        Final classification: classified over foreground pixels of each camera's crop.
+    timings_ms : dict[str, float]
+        Milliseconds per stage (:data:`STAGES`).
+    cameras : list[CameraObservation]
+    """
+
+    q: np.ndarray
+    q_blend: np.ndarray
+    classified_fraction: np.ndarray
+    timings_ms: dict[str, float]
+    cameras: list[CameraObservation] = field(default_factory=list)
+    q_prior: np.ndarray | None = None
+
+
+def _reduced(view: CropView, size: int) -> CropView:
+    """The same square as ``view`` sampled with ``size`` pixels per side."""
+    r = view.size / size
+    return CropView(view.x0 + 0.5 * view.scale * (r - 1.0), view.y0 + 0.5 * view.scale * (r - 1.0), view.scale * r, size)
+
+
+def initial_white_balance(image: np.ndarray, labels: np.ndarray, colour_model: ColourModel) -> np.ndarray:
+    """``W`` from one labelled frame (section 5.1): the user's scribbles, as colour ids per pixel (-1 unlabelled,
+    :data:`mocap.shirt.colour_model.NOT_SHIRT` for not-shirt pixels, which are ignored here).
+
+    Raises
+    ------
+    MocapInputError
+        When no colour has enough labelled pixels.
+    """
+    means, counts = labelled_colour_means(image, labels, colour_model.n_colours, erode_px=1)
+    W = solve_white_balance(means, colour_model.means, np.sqrt(counts))
+    if W is None:
+        raise MocapInputError("initial white balance: no shirt colour has enough labelled pixels; scribble on more patches of the first frame")
+    return W
+
+
+class ShirtTracker:
+    """Runs the pipeline frame after frame for a rig of calibrated cameras.
+
+    Parameters
+    ----------
+    database : PoseDatabase
+        Poses and the shirt model (geometry, MJCF).
+    colour_model : ColourModel
+    priors : IKPriors
+    calibration : Calibration
+    white_balance : list of (3, 3) float
+        Initial ``W`` of every camera (:func:`initial_white_balance`).
+    params : ShirtPipelineParams
+    empty_frames : list of list of (H, W, 3) uint8, optional
+        Frames of the empty scene per camera to prime the background model.
+    other_colours : ColourModel, optional
+        The session's not-shirt colours (:func:`mocap.shirt.colour_model.train_other_colours`).
+    """
+
+    def __init__(self, database: PoseDatabase, colour_model: ColourModel, priors: IKPriors, calibration: Calibration,
+                 white_balance: list[np.ndarray], params: ShirtPipelineParams = ShirtPipelineParams(),
+                 empty_frames: list[list[np.ndarray]] | None = None, other_colours: ColourModel | None = None) -> None:
+        self.db = database
+        self.colours = colour_model
+        self.other = other_colours
+        self.priors = priors
+        self.params = params
+        self.cameras = list(calibration)
+        C = len(self.cameras)
+        if len(white_balance) != C:
+            raise MocapInputError(f"ShirtTracker: {len(white_balance)} white-balance matrices for {C} cameras; give one per camera")
+        if colour_model.n_colours != database.n_colours:
+            raise MocapInputError(f"ShirtTracker: colour model has {colour_model.n_colours} colours, the database's shirt {database.n_colours}")
+        self.model = ShirtModel(database.mjcf_text, database.geometry)
+        self.kin = self.model.kin
+        self.ik = ShirtIK(self.kin, database.geometry.body_names, self.cameras)
+        self.W = [np.asarray(w, float).copy() for w in white_balance]
+        self.references = [ReferenceIlluminations(w, params.reference_distance) for w in self.W]
+        self.backgrounds: list[BackgroundModel | None] = [None] * C
+        if params.background is not None:
+            self.backgrounds = [BackgroundModel(params.background) for _ in range(C)]
+            if empty_frames is not None:
+                if len(empty_frames) != C:
+                    raise MocapInputError(f"ShirtTracker: empty_frames for {len(empty_frames)} cameras, the rig has {C}")
+                for bg, frames in zip(self.backgrounds, empty_frames):
+                    bg.learn_empty(frames)
+        self.q_prev: np.ndarray | None = None
+        self._first_fraction: list[float | None] = [None] * C
+        self._root_active = np.zeros(UPPER_NV, bool)
+        self._root_active[:6] = True
+        K = colour_model.n_colours
+        self._colour_members = [np.flatnonzero(self.model.patch_colour == k) for k in range(K)]
+
+    # ------------------------------------------------------------------ helpers
+    def _ray_rotation(self, ci: int, uv: np.ndarray) -> np.ndarray:
+        """Rows: the ray frame's axes in camera coordinates, z along the ray through pixel ``uv``."""
+        cam = self.cameras[ci]
+        xy = cam.undistort_pixels(np.asarray(uv, float)[None])[0] if np.any(cam.dist != 0) else \
+            np.linalg.solve(cam.K, np.array([uv[0], uv[1], 1.0]))[:2]
+        return look_at_view(np.array([xy[0], xy[1], 1.0]))
+
+    def _canonical(self, hinges: np.ndarray, view_rotation: np.ndarray):
+        """Orthographic render of a pose in a view, its tiny square (view metres), anchors and centroids."""
+        vv = self.model.view_vertices(hinges, view_rotation)
+        centre, side = self.model.shirt_extent(vv)
+        side *= _CANONICAL_MARGIN
+        rend = self.model.render_orthographic(vv, centre, side, _CANONICAL_SIZE)
+        tm = tiny_id_map(rend.colour, self.model.n_colours)
+        if tm is None:
+            return None
+        px = side / _CANONICAL_SIZE
+        box_c = centre + (tm.centre + 0.5 - _CANONICAL_SIZE / 2.0) * px
+        box_s = tm.side * px
+        cents, counts = patch_centroids(rend.patch, self.model.n_patches)
+        cents_m = centre + (cents + 0.5 - _CANONICAL_SIZE / 2.0) * px
+        return box_c, box_s, self.model.patch_anchors(rend), cents_m, counts
+
+    def _constraints(self, ci: int, targets_px: np.ndarray, ok: np.ndarray, anchors, sqrt_info: np.ndarray,
+                     size_px: float) -> Constraints:
+        """Constraints of camera ``ci`` for the patches that are measured (``ok``) and rendered (have anchors).
+
+        ``targets_px`` and ``sqrt_info`` are per patch: ``(P, 2)`` and ``(P, 2, 2)``.
+        """
+        patch_a, body_a, point_a, weight_a = anchors
+        has = np.zeros(self.model.n_patches, bool)
+        has[patch_a] = True
+        use = np.flatnonzero(ok & has & np.all(np.isfinite(targets_px), axis=1))
+        if use.size == 0:
+            return Constraints.empty()
+        index = -np.ones(self.model.n_patches, int)
+        index[use] = np.arange(use.size)
+        a = index[patch_a] >= 0
+        return Constraints(np.full(use.size, ci), use, targets_px[use], sqrt_info[use], np.full(use.size, float(size_px)),
+                           index[patch_a[a]], body_a[a], point_a[a], weight_a[a])
+
+    # ------------------------------------------------------------------ one frame
+    def process(self, images: list[np.ndarray]) -> FrameEstimate:
+        """Run the pipeline on one synchronised frame ``[(H, W, 3) uint8 RGB per camera]``."""
+        est, cons, lin = self.observe(images)
+        if not np.all(np.isfinite(est.q_blend)):
+            if not self.params.keep_classification:
+                est.cameras = []
+            return est
+        p = self.params
+        q_b = est.q_blend
+        T = est.timings_ms
+
+        # 4. inverse kinematics
+        t = time.perf_counter()
+        if p.pose_prior:
+            priors = [(q_b, self.priors.blend_std)]
+            if self.q_prev is not None:
+                priors.append((self.q_prev, self.priors.motion_std))
+        else:
+            priors = [(q_b, np.full(UPPER_NV, p.baseline_damping_std))]
+        if len(cons):
+            res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations)
+            if p.pose_prior and self.q_prev is not None and est.q_prior is not self.q_prev:
+                # also start from the previous pose (a blend far off can hold the solver in a
+                # local minimum); keep the lower energy
+                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations)
+                res = alt if alt.cost < res.cost else res
+            for _ in range(p.correspondence_passes - 1):
+                # the two patches of a colour were told apart (and anchored) by the blended
+                # pose; a blend far off swaps them: split again with the solved pose
+                cons2 = self.reassign(res.q, est.cameras, lin)
+                if len(cons2):
+                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations)
+            q = res.q
+        else:
+            q = q_b.copy()
+        T["ik"] = (time.perf_counter() - t) * 1e3
+
+        # 5. white balance for the next frame
+        t = time.perf_counter()
+        self.finish(q, est.cameras, lin)
+        T["white_balance"] = (time.perf_counter() - t) * 1e3
+        est.q = q
+        if not p.keep_classification:
+            est.cameras = []
+        return est
+
+    def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
+        """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
+        if self.params.adaptive_white_balance:
+            for ci, o in enumerate(obs):
+                if o.tiny is not None and lin[ci] is not None:
+                    self._update_white_balance(ci, q, o, lin[ci])
+        self.q_prev = np.asarray(q, float).copy()
+
+    def observe(self, images: list[np.ndarray]) -> tuple[FrameEstimate, Constraints, list[np.ndarray | None]]:
+        """Steps 0-3 of a frame: the blended pose (``q_blend``) and the centroid constraints of step 4.
+
+        Returns the estimate (``q`` still NaN), the constraints and the crops' linear RGB.
+        """
+        p = self.params
+        C = len(self.cameras)
+        if len(images) != C:
+            raise MocapInputError(f"ShirtTracker.process: {len(images)} images for {C} cameras")
+        K = self.colours.n_colours
+        T = {s: 0.0 for s in STAGES}
+        clock = time.perf_counter
+        obs = [CameraObservation() for _ in range(C)]
+        nan_q = np.full(UPPER_NQ, np.nan)
+
+        # 0. background subtraction
+        t = clock()
+        masks = []
+        for ci, img in enumerate(images):
+            bg = self.backgrounds[ci]
+            masks.append(bg.apply(img) if bg is not None else None)
+        T["background"] = (clock() - t) * 1e3
+
+        # histogram search
+        t = clock()
+        for ci, img in enumerate(images):
+            obs[ci].location = search_shirt(img, p.histogram, masks[ci])
+        T["histogram_search"] = (clock() - t) * 1e3
+
+        # 1. crop, white balance, Gaussian classification (+ reference illuminations)
+        t = clock()
+        lin, fgs, dists = [None] * C, [None] * C, [None] * C
+        for ci, img in enumerate(images):
+            loc = obs[ci].location
+            if loc is None:
+                continue
+            view = crop_view(loc.x, loc.y, p.crop_factor * loc.s, p.work_size)
+            work = crop_image(img, view)
+            lin[ci] = SRGB_TO_LINEAR[work]
+            if masks[ci] is not None:
+                full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0])
+                fgs[ci] = crop_image(full.astype(np.uint8), view, cv2.INTER_NEAREST) > 0
+            dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
+            cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other)
+            if self._first_fraction[ci] is None:
+                self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
+            poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]
+            if p.adaptive_white_balance and poor and len(self.references[ci]) > 1:
+                i, alt = best_reference(lin[ci], self.colours, self.references[ci].matrices, fgs[ci], p.gaussian_threshold,
+                                        self.other)
+                if alt.classified_fraction > cls.classified_fraction:
+                    self.W[ci] = self.references[ci].matrices[i].copy()
+                    cls = alt
+                    dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
+            obs[ci].view, obs[ci].step1, obs[ci].W, obs[ci].foreground = view, cls, self.W[ci].copy(), fgs[ci]
+        T["classify"] = (clock() - t) * 1e3
+
+        # 2a. database search per camera
+        t = clock()
+        for ci in range(C):
+            o = obs[ci]
+            if o.step1 is None:
+                continue
+            o.tiny = tiny_id_map(o.step1.colour, K)
+            if o.tiny is None:
+                continue
+            o.neighbours = self.db.search(o.tiny.ids, p.neighbours)
+            o.ray_rotation = self._ray_rotation(ci, o.view.to_image(o.tiny.centre))
+        T["database"] = (clock() - t) * 1e3
+
+        # 2b. blend across cameras and fit the root (6 DoF)
+        t = clock()
+        seen = [ci for ci in range(C) if obs[ci].neighbours is not None]
+        if not seen:
+            T["global_fit"] = (clock() - t) * 1e3
+            return self._failed(T, obs, lin)
+        hs, Rs, ws = [], [], []
+        for ci in seen:
+            nb = obs[ci].neighbours
+            to_world = self.cameras[ci].R.T @ obs[ci].ray_rotation.T
+            hs.append(nb.hinges)
+            Rs.append(np.einsum("ij,njk->nik", to_world, nb.view_rotation))
+            ws.append(blend_weights(nb.distance) / len(seen))
+        hinges_b, R_b, _ = blend_poses(np.concatenate(hs), np.concatenate(Rs), np.concatenate(ws))
+        q_b = self._global_fit(obs, seen, hinges_b, R_b)
+        T["global_fit"] = (clock() - t) * 1e3
+        if q_b is None:
+            return self._failed(T, obs, lin)
+
+        # 3. pose-assisted classification, patch centroids, constraints
+        t = clock()
+        prior_pose = self._prior_pose(q_b, obs, seen, lin, fgs) if p.pose_prior else q_b
+        parts = []
+        fractions = np.zeros(C)
+        for ci in seen:
+            o = obs[ci]
+            cam = self.cameras[ci]
+            # the prior pose's id map at a reduced resolution: distance transforms and anchors
+            rend, idx, pdist = self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
+            if p.pose_prior:
+                cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
+                                  for m in self._colour_members]) * np.float32(o.view.scale)
+                # C = 6 / s, s the side of the shirt's square (image pixels)
+                final = classify_pose_assisted(lin[ci], self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
+                                               fgs[ci], p.assisted_threshold, dists[ci], self.other)
+            else:
+                final = o.step1
+            o.final = final
+            fractions[ci] = final.classified_fraction
+            cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend)
+            o.n_constraints = len(cons)
+            parts.append(cons)
+        cons = Constraints.concatenate(parts)
+        T["pose_assisted"] = (clock() - t) * 1e3
+        est = FrameEstimate(nan_q.copy(), q_b, fractions, T, obs)
+        est.q_prior = prior_pose
+        return est, cons, lin
+
+    def _render_distances(self, q: np.ndarray, ci: int, o: CameraObservation, lin: np.ndarray, fg: np.ndarray | None):
+        """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
+        rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
+        idx = foreground_pixels(lin, fg)[0]
+        return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size)
+
+    def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list) -> np.ndarray:
+        """The pose whose id map steps 3 and 4 use: the blended pose, or the previous frame's when that one agrees
+        better with the step-1 classification.
+
+        Not in seed 001, whose database covers realistic poses densely; a database sampled
+        uniformly over the joint ranges gives blends that can be far off, while the
+        previous pose of a tracked sequence is usually a few centimetres away.  Agreement:
+        the fraction of classified pixels within 4 % of the shirt's size of a rendered
+        pixel of their colour, over all cameras.
+        """
+        if self.q_prev is None:
+            return q_b
+        scores = []
+        for q in (q_b, self.q_prev):
+            hit = tot = 0
+            for ci in seen:
+                o = obs[ci]
+                _, idx, pdist = self._render_distances(q, ci, o, lin[ci], fgs[ci])
+                col = o.step1.colour.ravel()[idx]
+                on = col >= 0
+                if not on.any():
+                    continue
+                d = np.full(len(idx), np.inf, np.float32)
+                for k, m in enumerate(self._colour_members):
+                    sel = on & (col == k)
+                    if sel.any() and m.size:
+                        d[sel] = pdist[m][:, sel].min(axis=0)
+                hit += int(np.sum(d[on] * o.view.scale <= 0.04 * o.tiny.side * o.view.scale))
+                tot += int(on.sum())
+            scores.append(hit / max(tot, 1))
+        return self.q_prev if scores[1] > scores[0] else q_b
+
+    def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
+                            rend) -> Constraints:
+        """Centroid constraints of one camera: classified colours split into patches by a rendered pose."""
+        pm = assign_patches(colour, idx, pdist, self.model.patch_colour)
+        cents, counts = patch_centroids(pm, self.model.n_patches)
+        size_px = o.tiny.side * o.view.scale
+        info = self.priors.centroid_sqrt_info(np.arange(self.model.n_patches), size_px)
+        return self._constraints(ci, o.view.to_image(cents), counts >= self.params.min_patch_pixels, self.model.patch_anchors(rend),
+                                 info, size_px)
+
+    def reassign(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> Constraints:
+        """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
+        parts = []
+        for ci, o in enumerate(obs):
+            if o.final is None or lin[ci] is None:
+                continue
+            rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
+            idx = foreground_pixels(lin[ci], o.foreground)[0]
+            pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size)
+            parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
+        return Constraints.concatenate(parts)
+
+    def _failed(self, T: dict, obs: list[CameraObservation], lin: list):
+        C = len(self.cameras)
+        return FrameEstimate(np.full(UPPER_NQ, np.nan), np.full(UPPER_NQ, np.nan), np.zeros(C), T, obs), Constraints.empty(), lin
+
+    def _global_fit(self, obs: list[CameraObservation], seen: list[int], hinges: np.ndarray, R_world: np.ndarray) -> np.ndarray | None:
+        """Step 2's 6-DoF fit of the blended pose to the query squares of every camera."""
+        p = self.params
+        parts, roots = [], []
+        for ci in seen:
+            o = obs[ci]
+            cam = self.cameras[ci]
+            V = o.ray_rotation @ cam.R @ R_world  # root -> ray view
+            can = self._canonical(hinges, V)
+            if can is None:
+                continue
+            box_c, box_s, anchors, cents_m, counts = can
+            size_px = o.tiny.side * o.view.scale
+            centre_px = o.view.to_image(o.tiny.centre)
+            scale = size_px / box_s  # image px per view metre
+            targets = centre_px + (cents_m - box_c) * scale
+            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+            depth = f / scale
+            root_view = np.array([-box_c[0], -box_c[1], depth])
+            roots.append(cam.R.T @ (o.ray_rotation.T @ root_view - cam.t))
+            info = np.repeat((np.eye(2) / (p.global_fit_std * size_px))[None], self.model.n_patches, axis=0)
+            parts.append(self._constraints(ci, targets, counts >= 2, anchors, info, size_px))
+        if not roots:
+            return None
+        q0 = self.kin.make_q(R_world, np.mean(roots, axis=0), hinges)
+        cons = Constraints.concatenate(parts)
+        if len(cons) < 3:
+            return q0
+        return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations).q
+
+    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray) -> None:
+        """Step 5: ``W*`` from the colours under the final pose's id map."""
+        p = self.params
+        view = _reduced(o.view, p.wb_size)
+        rend = self.model.render_camera(q, self.cameras[ci], view)
+        small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
+        means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
+        W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4)
+        if W is None or not np.all(np.isfinite(W)):
+            return
+        # keep W* only if it explains the colours under the final pose at least as well as
+        # the current W (a pose that is off labels pixels wrongly, and W* would follow)
+        lab = rend.colour.ravel()
+        on = lab >= 0
+        if on.sum() < 20:
+            return
+        x = small.reshape(-1, 3)[on]
+        def agreement(Wm: np.ndarray) -> float:
+            D = self.colours.distances(x, Wm)
+            return float(np.mean((D.argmin(axis=1) == lab[on]) & (D.min(axis=1) < p.assisted_threshold)))
+        if agreement(W) + 0.02 < agreement(self.W[ci]):
+            return
+        self.W[ci] = W
+        self.references[ci].offer(W)

@@ -1,0 +1,271 @@
+"""``simbench shirt build-db``: the colour-shirt pipeline's pose database, made from the bench's humanoid.
+
+The database (:class:`mocap.shirt.pose_database.PoseDatabase`) holds upper-body poses
+sampled uniformly over the configurations of the humanoid (each estimated hinge
+uniform between its joint limits, read from the model) and over a box of root
+orientations around facing the viewer (yaw, pitch and roll about the subject's own
+axes, uniform in the configured ranges), each rasterised orthographically as a
+normalised 40x40 id map.  It also carries the shirt model the pipeline needs without
+the simulator: the humanoid MJCF text and the body-frame triangle meshes of the
+shirt's bodies with their patch ids (plus head and hands, which can hide the shirt),
+exported from :func:`simbench.scenes.surface.body_surface`.
+
+Rendering uses the pipeline's own CPU rasteriser
+(:meth:`mocap.shirt.shirt_model.ShirtModel.render_orthographic`) so that database
+entries and run-time renders of a pose are the same pixels.
+
+Default location: ``$SIMBENCH_CACHE_DIR`` or ``~/.cache/simbench``, file
+``shirt_db_<hash>.npz`` where the hash covers the subject, the size, the ranges and
+the seed; :func:`ensure_database` builds it (with a progress bar) when missing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Optional
+
+import numpy as np
+import typer
+
+from simbench.errors import SimbenchInputError
+from simbench.scenes.anthropometry import BodyParams
+
+if TYPE_CHECKING:  # the pipeline's modules (faiss, Pinocchio) load on first use: the CLI stays quick
+    from mocap.shirt.pose_database import PoseDatabase
+    from mocap.shirt.shirt_model import ShirtGeometry, ShirtModel
+
+__all__ = [
+    "OCCLUDER_BODIES",
+    "FACING_VIEWER",
+    "PoseSampling",
+    "shirt_geometry",
+    "shirt_model",
+    "sample_poses",
+    "render_entry",
+    "build_database",
+    "cache_dir",
+    "default_database_path",
+    "ensure_database",
+    "shirt_app",
+    "bench_shirt_command",
+]
+
+OCCLUDER_BODIES: tuple[str, ...] = ("pelvis", "head", "hand_l", "hand_r")
+"""Bodies without shirt that can hide part of it (rendered as non-shirt): the trousers over the shirt's hem, head, hands."""
+
+FACING_VIEWER = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
+"""View-frame rotation of a subject facing the viewer: its left (+Y) to image right,
+its up (+Z) to image up (-y), its front (+X) towards the viewer (-z)."""
+
+_RENDER_SIZE = 96  # px: orthographic render, then normalised to 40x40
+_RENDER_MARGIN = 1.15
+_BATCH = 48  # poses per rasteriser call
+
+
+@dataclass(frozen=True)
+class PoseSampling:
+    """How database poses are drawn.
+
+    Angles in degrees: the root's yaw (turning about its up axis), pitch (leaning
+    about its left axis) and roll (about its forward axis) away from facing the viewer,
+    each uniform in ``[-x, x]``.
+    """
+
+    n_poses: int = 80_000
+    yaw_deg: float = 80.0
+    pitch_deg: float = 25.0
+    roll_deg: float = 20.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if int(self.n_poses) < 10:
+            raise SimbenchInputError(f"shirt database: n_poses = {self.n_poses}; use at least 10 (the pipeline blends 10 neighbours)")
+        for name in ("yaw_deg", "pitch_deg", "roll_deg"):
+            v = float(getattr(self, name))
+            if not (0.0 <= v <= 180.0):
+                raise SimbenchInputError(f"shirt database: {name} = {v}; give a range in [0, 180] degrees")
+
+
+def shirt_geometry(params: BodyParams) -> "ShirtGeometry":
+    """Body-frame meshes of the shirt's bodies and occluders, with patch ids (from the bench's surface)."""
+    from mocap.shirt.shirt_model import SHIRT_BODIES, ShirtGeometry
+    from simbench.scenes.shirt import COLOUR_NAMES, PATCH_COLOUR
+    from simbench.scenes.surface import body_surface
+
+    parts = {p.body: p for p in body_surface(params, shirt=True)}
+    names = SHIRT_BODIES + OCCLUDER_BODIES
+    verts, vbody, faces, fpatch = [], [], [], []
+    offset = 0
+    for i, b in enumerate(names):
+        part = parts[b]
+        v = np.asarray(part.mesh.vertices, np.float32)
+        f = np.asarray(part.mesh.faces, np.int64)
+        verts.append(v)
+        vbody.append(np.full(len(v), i, np.int16))
+        faces.append(f + offset)
+        fpatch.append(np.asarray(part.face_patch, np.int16) if b in SHIRT_BODIES else np.full(len(f), -1, np.int16))
+        offset += len(v)
+    return ShirtGeometry(names, np.concatenate(verts), np.concatenate(vbody), np.concatenate(faces).astype(np.int32),
+                         np.concatenate(fpatch), np.asarray(PATCH_COLOUR, np.int16), tuple(COLOUR_NAMES))
+
+
+def shirt_model(params: BodyParams) -> "ShirtModel":
+    from mocap.shirt.shirt_model import ShirtModel
+    from simbench.scenes.humanoid import humanoid_mjcf
+
+    return ShirtModel(humanoid_mjcf(params), shirt_geometry(params))
+
+
+def sample_poses(model: "ShirtModel", sampling: PoseSampling, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Hinges ``(N, 11)`` uniform within the joint limits and view rotations ``(N, 3, 3)``."""
+    from scipy.spatial.transform import Rotation
+
+    n = int(sampling.n_poses)
+    lo, hi = model.kin.lower, model.kin.upper
+    hinges = lo + (hi - lo) * rng.random((n, len(lo)))
+    ang = np.radians([sampling.yaw_deg, sampling.pitch_deg, sampling.roll_deg])
+    ypr = (2.0 * rng.random((n, 3)) - 1.0) * ang
+    # yaw about the subject's Z, then pitch about its Y, then roll about its X (intrinsic)
+    turn = Rotation.from_euler("ZYX", ypr).as_matrix()
+    return hinges, FACING_VIEWER @ turn
+
+
+def render_entry(model: "ShirtModel", hinges: np.ndarray, view_rotation: np.ndarray):
+    """The normalised tiny map of one pose, with its square in view metres (or None if no shirt shows)."""
+    from mocap.shirt.pose_database import tiny_id_map
+
+    vv = model.view_vertices(hinges, view_rotation)
+    centre, side = model.shirt_extent(vv)
+    side *= _RENDER_MARGIN
+    r = model.render_orthographic(vv, centre, side, _RENDER_SIZE)
+    tm = tiny_id_map(r.colour, model.n_colours)
+    if tm is None:
+        return None
+    # render pixel (x, y) centre -> view metres
+    px = side / _RENDER_SIZE
+    c_m = centre + (tm.centre + 0.5 - _RENDER_SIZE / 2.0) * px
+    return tm.ids, c_m, tm.side * px
+
+
+def build_database(params: BodyParams, sampling: PoseSampling, progress: Callable[[int], None] | None = None) -> "PoseDatabase":
+    """Sample, render and index a pose database for a subject."""
+    from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
+
+    model = shirt_model(params)
+    rng = np.random.default_rng(np.random.SeedSequence([sampling.seed, 0x5D8]))
+    hinges, views = sample_poses(model, sampling, rng)
+    n = len(hinges)
+    tiny = np.full((n, 40, 40), -1, np.int8)
+    centre = np.zeros((n, 2), np.float32)
+    side = np.zeros(n, np.float32)
+    ok = np.zeros(n, bool)
+    for a in range(0, n, _BATCH):
+        b = min(a + _BATCH, n)
+        vv = model.view_vertices_batch(hinges[a:b], views[a:b])
+        c, s = model.shirt_extent_batch(vv)
+        s = s * _RENDER_MARGIN
+        maps = model.render_orthographic_batch(vv, c, s, _RENDER_SIZE)
+        px = s / _RENDER_SIZE
+        for j in range(b - a):
+            tm = tiny_id_map(maps[j], model.n_colours)
+            if tm is None:
+                continue
+            i = a + j
+            tiny[i] = tm.ids
+            centre[i] = c[j] + (tm.centre + 0.5 - _RENDER_SIZE / 2.0) * px[j]
+            side[i] = tm.side * px[j]
+            ok[i] = True
+        if progress is not None:
+            progress(b - a)
+    meta = {"subject": asdict(params), "sampling": asdict(sampling), "render_size_px": _RENDER_SIZE,
+            "key": database_key(params, sampling),
+            "created_unix_s": time.time(), "dropped_without_shirt": int((~ok).sum())}
+    return PoseDatabase.build(tiny[ok], hinges[ok], views[ok], centre[ok], side[ok], model.geometry, model.mjcf_text, meta,
+                              np.random.default_rng(np.random.SeedSequence([sampling.seed, 0x9CA])))
+
+
+def cache_dir() -> Path:
+    """``$SIMBENCH_CACHE_DIR`` if set, else ``~/.cache/simbench``."""
+    env = os.environ.get("SIMBENCH_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "simbench"
+
+
+def database_key(params: BodyParams, sampling: PoseSampling) -> str:
+    blob = json.dumps({"subject": asdict(params), "sampling": asdict(sampling), "version": 3, "occluders": list(OCCLUDER_BODIES), "render": _RENDER_SIZE},
+                      sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:12]
+
+
+def default_database_path(params: BodyParams, sampling: PoseSampling) -> Path:
+    return cache_dir() / f"shirt_db_{database_key(params, sampling)}.npz"
+
+
+def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path | None = None, echo=print,
+                    progress_factory=None) -> "PoseDatabase":
+    """Load the database at ``path`` (default: the cache), building it first when missing.
+
+    ``progress_factory(description, total)`` returns ``(context manager, advance)``
+    (e.g. :func:`simbench.cli.progress_bar`); without it a rich bar is made here.
+    """
+    from mocap.shirt.pose_database import PoseDatabase
+
+    path = Path(path) if path is not None else default_database_path(params, sampling)
+    if path.is_file():
+        return PoseDatabase.load(path)
+    echo(f"shirt pose database {path} missing: building {sampling.n_poses} poses")
+    if progress_factory is None:
+        from simbench.cli import progress_bar as progress_factory
+    prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
+    with prog:
+        db = build_database(params, sampling, progress=advance)
+    db.save(path)
+    echo(f"wrote {path} ({len(db)} poses)")
+    return db
+
+
+# --------------------------------------------------------------------------- CLI
+shirt_app = typer.Typer(no_args_is_help=True, help="The colour-shirt pipeline's pose database.")
+
+
+@shirt_app.command("build-db")
+def build_db_command(
+    out: Optional[Path] = typer.Option(None, "--out", help="database file (default: the cache, shirt_db_<hash>.npz)"),
+    n_poses: int = typer.Option(80_000, "--poses", help="number of poses"),
+    height_m: float = typer.Option(1.75, "--height", help="subject height (m)"),
+    yaw_deg: float = typer.Option(80.0, "--yaw", help="root yaw range +- (deg) around facing the camera"),
+    pitch_deg: float = typer.Option(25.0, "--pitch", help="root pitch range +- (deg)"),
+    roll_deg: float = typer.Option(20.0, "--roll", help="root roll range +- (deg)"),
+    seed: int = typer.Option(0, "--seed"),
+) -> None:
+    """Sample, rasterise and index upper-body poses of the humanoid (40x40 id maps)."""
+    from simbench.cli import console, progress_bar, user_errors
+
+    @user_errors
+    def run() -> None:
+        sampling = PoseSampling(n_poses, yaw_deg, pitch_deg, roll_deg, seed)
+        params = BodyParams(height_m=height_m)
+        path = out or default_database_path(params, sampling)
+        prog, advance = progress_bar(f"shirt database ({n_poses} poses)", n_poses)
+        t0 = time.perf_counter()
+        with prog:
+            db = build_database(params, sampling, progress=advance)
+        db.save(path)
+        console.print(f"wrote {path}: {len(db)} poses in {time.perf_counter() - t0:.0f} s")
+
+    run()
+
+
+def bench_shirt_command(
+    frames: int = typer.Option(20, "--frames", help="frames timed (after 3 warm-up frames)"),
+    scenario: Optional[Path] = typer.Option(None, "--scenario", help="shirt scenario (default scenarios/shirt_office.toml)"),
+) -> None:
+    """ms per 2-camera frame of the colour-shirt pipeline per stage, one core, with references."""
+    from simbench.cli import user_errors
+    from simbench.shirt_run import run_shirt_benchmark
+
+    user_errors(run_shirt_benchmark)(n_frames=frames, scenario_path=str(scenario) if scenario else None)
