@@ -151,6 +151,8 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             if capture is not None:
                 export_capture(capture, tmp / "exports", gt.calibration(), subject_model(bench))
                 save_template(label_template(bench), tmp / "exports" / "label_template.csv")
+                # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
+                subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
             _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
             (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
             from simbench.report import write_run_report
