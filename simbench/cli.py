@@ -6,46 +6,16 @@ one line naming the file, the field, the value and the fix, and exits with code 
 
 from __future__ import annotations
 
-import functools
 import json
-import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from mocap.errors import MocapInputError
-from simbench.errors import SimbenchInputError
+from simbench.cli_common import console, parse_overrides, progress_bar, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Simulation-validated test bench for optical motion capture.")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that print figures with a reference measured in the same run.")
 app.add_typer(bench_app, name="bench")
-console = Console(stderr=True)
-
-
-def user_errors(fn):
-    """Turn user-caused errors into one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except (SimbenchInputError, MocapInputError) as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2)
-
-    return wrapper
-
-
-def progress_bar(description: str, total: int):
-    """A rich progress bar; returns (progress, advance_callable)."""
-    prog = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console,
-                    disable=not sys.stderr.isatty() and False)
-    task = prog.add_task(description, total=total)
-    return prog, lambda n=1: prog.advance(task, n)
 
 
 @app.command()
@@ -106,22 +76,6 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
     width = max(len(k) for k in result.metrics)
     for k, v in sorted(result.metrics.items()):
         print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
-
-
-def parse_overrides(items: list[str]) -> dict[str, object]:
-    """``key=value`` strings to a dict; values parsed as TOML (numbers, strings, booleans, arrays)."""
-    import tomllib
-
-    out: dict[str, object] = {}
-    for item in items:
-        if "=" not in item:
-            raise SimbenchInputError(f"--set {item!r}: expected FIELD=VALUE, e.g. sensor.exposure_ms=20")
-        key, value = item.split("=", 1)
-        try:
-            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key.strip()] = value
-    return out
 
 
 @app.command("list")

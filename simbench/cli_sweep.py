@@ -5,7 +5,6 @@ Registered on the main app by :func:`register` (see the end of :mod:`simbench.cl
 
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from pathlib import Path
@@ -15,30 +14,10 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from mocap.errors import MocapInputError
-from simbench.errors import SimbenchInputError
+from simbench.cli_common import console, parse_overrides, user_errors
 
-console = Console(stderr=True)
-
-
-def _user_errors(fn):
-    """Turn user-caused errors into one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except (SimbenchInputError, MocapInputError) as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2)
-
-    return wrapper
-
-
-def _overrides(items: list[str]) -> dict[str, object]:
-    from simbench.cli import parse_overrides
-
-    return parse_overrides(items)
+_user_errors = user_errors
+_overrides = parse_overrides
 
 
 def _runs_progress(description: str):
