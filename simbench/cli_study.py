@@ -7,7 +7,6 @@ app at the end of :mod:`simbench.cli`.
 
 from __future__ import annotations
 
-import functools
 import os
 import sys
 import time
@@ -15,28 +14,12 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from mocap.errors import MocapInputError
+from simbench.cli_common import console, user_errors
 from simbench.errors import SimbenchInputError
 
 study_app = typer.Typer(no_args_is_help=True, help="Regenerate a paper's experiments on the bench, with its numbers beside ours.")
-console = Console(stderr=True)
-
-
-def _user_errors(fn):
-    """User-caused errors: one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except (SimbenchInputError, MocapInputError) as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2)
-
-    return wrapper
 
 
 def _split_names(items: list[str]) -> tuple[str, ...] | None:
@@ -52,7 +35,7 @@ def _default_workers() -> int:
 
 
 @study_app.command("trackers")
-@_user_errors
+@user_errors
 def trackers(
     out: Path = typer.Option(..., "--out", help="output folder (report.md, tables.json, losses.csv, videos/, plots/, frames/)"),
     videos: int = typer.Option(20, "--videos", min=1, help="videos per category (seed 000: 20)"),
