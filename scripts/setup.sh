@@ -24,7 +24,7 @@ fi
 need_pkgs=()
 ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1' || need_pkgs+=(libegl1)
 ldconfig -p 2>/dev/null | grep -q 'libGL.so.1' || need_pkgs+=(libgl1)
-ls /usr/lib/*/dri/swrast_dri.so /usr/lib/*/dri/*llvmpipe* >/dev/null 2>&1 || need_pkgs+=(libgl1-mesa-dri)
+compgen -G '/usr/lib/*/dri/swrast_dri.so' >/dev/null || need_pkgs+=(libgl1-mesa-dri)  # llvmpipe lives in swrast_dri.so
 if [ ${#need_pkgs[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     apt-get update -qq && apt-get install -y -qq "${need_pkgs[@]}" >/dev/null
