@@ -161,12 +161,14 @@ def capture_from_detections(
                                           points=predicted, gate_px=gate)
             add_stats({f"model_{k}": v for k, v in stats.items()})
             traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
-            traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps)
+            traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps, jumps=False)
             measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
             add_stats(stats)
             traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
             traj, measured = _repair_swaps(traj, measured, params.swap_repair, swaps, jumps=False)
-            fit = solver.solve(_drop_outliers(traj, solver.solve(traj), params.model_outlier_mm))
+            fit = solver.solve(traj)
+            for _ in range(2):  # a wrong point pulls the fit towards it: drop, refit, drop again
+                fit = solver.solve(_drop_outliers(traj, fit, params.model_outlier_mm))
             # Points still off the fitted skeleton by more than model_outlier_mm are
             # mislabelled or ghosts: remove them, fill short gaps as elsewhere.
             traj = _drop_outliers(traj, fit, params.model_outlier_mm, refill=params.reconstruction)
