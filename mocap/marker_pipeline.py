@@ -170,8 +170,16 @@ def capture_from_detections(
             for _ in range(2):  # a wrong point pulls the fit towards it: drop, refit, drop again
                 fit = solver.solve(_drop_outliers(traj, fit, params.model_outlier_mm))
             # Points still off the fitted skeleton by more than model_outlier_mm are
-            # mislabelled or ghosts: remove them, fill short gaps as elsewhere.
-            traj = _drop_outliers(traj, fit, params.model_outlier_mm, refill=params.reconstruction)
+            # mislabelled or ghosts: remove them. Gaps are then filled from the skeleton
+            # fitted to the measured points only: in fast motion a spline across a gap
+            # is centimetres off, the model driven by the segment's other markers is not.
+            traj = _drop_outliers(traj, fit, params.model_outlier_mm)
+            measured_only = Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
+                                         traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
+            fit = solver.solve(measured_only)
+            body_of = {m.name: m.body for m in subject.markers}
+            traj = _fill_from_model(measured_only, _model_markers(solver, fit, traj.labels),
+                                    params.reconstruction, [body_of.get(n, "") for n in traj.labels])
             reassoc_stats["missing_after_model_check"] = int(np.isnan(traj.xyz[..., 0]).sum())
         timings["skeleton"] = (time.perf_counter() - t0) * 1e3
     reassoc_stats["swaps_repaired"] = sum(1 for e in swaps if e[0] == "swap")
@@ -225,6 +233,38 @@ def _drop_outliers(traj: Trajectories, fit, max_mm: float, refill: Reconstructio
         method = "cubic" if refill.smoothing != "none" else "lsq"
         xyz, filled = fill_gaps(xyz, traj.times, refill.max_gap_frames, method, refill.gap_context_frames)
     return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, n_views)
+
+
+SPLINE_ONLY_MAX_GAP = 3
+
+
+def _fill_from_model(traj: Trajectories, predicted: np.ndarray, recon: ReconstructionParams,
+                     bodies: list[str]) -> Trajectories:
+    """Fill gaps of up to ``max_gap_frames``: with the fitted model's marker ``(F, M, 3)``
+    where another marker on the same body was measured in that frame (the model is pinned
+    there); otherwise only gaps of up to ``SPLINE_ONLY_MAX_GAP`` frames, by the
+    reconstruction's spline (over longer gaps with the whole segment unseen, a spline
+    through fast motion is centimetres off: better a gap than a wrong point)."""
+    from mocap.smoothing import fill_gaps
+
+    if recon.max_gap_frames <= 0:
+        return traj
+    measured = np.isfinite(traj.xyz).all(axis=2)
+    method = "cubic" if recon.smoothing != "none" else "lsq"
+    xyz, filled = fill_gaps(traj.xyz, traj.times, recon.max_gap_frames, method, recon.gap_context_frames)
+    _, short = fill_gaps(traj.xyz, traj.times, min(SPLINE_ONLY_MAX_GAP, recon.max_gap_frames), method,
+                         recon.gap_context_frames)
+    body_ids = {b: i for i, b in enumerate(dict.fromkeys(bodies))}
+    bid = np.array([body_ids[b] for b in bodies])
+    for m in range(xyz.shape[1]):
+        same_body = (bid == bid[m]) & (np.arange(len(bid)) != m)
+        pinned = measured[:, same_body].any(axis=1) if same_body.any() else np.zeros(len(xyz), bool)
+        use = filled[:, m] & pinned & np.isfinite(predicted[:, m]).all(axis=1)
+        xyz[use, m] = predicted[use, m]
+        drop = filled[:, m] & ~use & ~short[:, m]
+        xyz[drop, m] = np.nan
+        filled[drop, m] = False
+    return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, traj.n_views)
 
 
 def _model_markers(solver, fit, labels: list[str]) -> np.ndarray:
