@@ -30,7 +30,7 @@ import numpy as np
 
 from mocap.errors import MocapInputError
 
-__all__ = ["HistogramSearchParams", "ShirtLocation", "chromaticity_bins", "search_shirt", "naive_search"]
+__all__ = ["HistogramSearchParams", "ShirtLocation", "scales_px", "chromaticity_bins", "search_shirt", "naive_search"]
 
 _REDUCE = 2  # the image is halved before binning
 
@@ -47,8 +47,9 @@ class HistogramSearchParams:
         Cap of each bin in the uniformity ``u(h) = sum_i min(h_i, tau)``.
     stride_px : int
         Spacing of the sampled window centres, original pixels (a multiple of 2).
-    scales_px : tuple[int, ...]
-        Window sides, original pixels (multiples of ``stride_px``).
+    scales : tuple[float, ...]
+        Window sides as fractions of the image height (rounded to multiples of
+        ``stride_px``; 48 to 240 pixels in a 640 x 480 frame).
     u_sigma_fraction : float
         ``u_sigma = u_sigma_fraction * u_max``.
     min_brightness : int
@@ -58,17 +59,23 @@ class HistogramSearchParams:
     bins_per_axis: int = 10
     tau: float = 0.1
     stride_px: int = 6
-    scales_px: tuple[int, ...] = (48, 72, 96, 132, 180, 240)
+    scales: tuple[float, ...] = (0.1, 0.15, 0.2, 0.275, 0.375, 0.5)
     u_sigma_fraction: float = 0.1
     min_brightness: int = 40
 
     def __post_init__(self) -> None:
         if self.stride_px % _REDUCE or self.stride_px <= 0:
             raise MocapInputError(f"HistogramSearchParams.stride_px = {self.stride_px}; use a positive multiple of {_REDUCE}")
-        if not self.scales_px or any(s % self.stride_px or s <= 0 for s in self.scales_px):
-            raise MocapInputError(f"HistogramSearchParams.scales_px = {self.scales_px}; give positive multiples of stride_px = {self.stride_px}")
+        if not self.scales or any(not (0.0 < s <= 1.0) for s in self.scales):
+            raise MocapInputError(f"HistogramSearchParams.scales = {self.scales}; give fractions of the image height in (0, 1]")
         if not (0.0 < self.tau <= 1.0):
             raise MocapInputError(f"HistogramSearchParams.tau = {self.tau}; use a value in (0, 1]")
+
+
+def scales_px(params: HistogramSearchParams, height: int) -> list[int]:
+    """Window sides in pixels for an image ``height`` pixels high (multiples of the stride, at least two strides)."""
+    st = params.stride_px
+    return sorted({max(2 * st, int(round(f * height / st)) * st) for f in params.scales})
 
 
 @dataclass(frozen=True)
@@ -173,7 +180,7 @@ def search_shirt(image: np.ndarray, params: HistogramSearchParams = HistogramSea
     np.cumsum(np.cumsum(counts, axis=0), axis=1, out=integral[1:, 1:])
     cell_px = c * _REDUCE
     centres, sizes, us = [], [], []
-    for s_px in params.scales_px:
+    for s_px in scales_px(params, np.asarray(image).shape[0]):
         m = s_px // cell_px
         if m > ny or m > nx:
             continue
@@ -221,7 +228,7 @@ def naive_search(image: np.ndarray, params: HistogramSearchParams = HistogramSea
         fg_cells = fg_small[: ny * c, : nx * c].reshape(ny, c, nx, c).mean(axis=(1, 3)) >= 0.5
     cell_px = c * _REDUCE
     centres, sizes, us = [], [], []
-    for s_px in params.scales_px:
+    for s_px in scales_px(params, H):
         m = s_px // cell_px
         if m > ny or m > nx:
             continue
