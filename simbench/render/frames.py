@@ -136,7 +136,10 @@ class FrameRenderer:
                 outs = rad_out + (("ids",) if n == 1 else ())
                 out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
                                          outputs=outs)
-                acc = out["radiance"].copy() if acc is None else acc + out["radiance"]
+                if acc is None:  # one sub-frame: use the read-back buffer as it is
+                    acc = out["radiance"] if n == 1 else out["radiance"].copy()
+                else:
+                    acc += out["radiance"]
                 idr = out.get("ids")
             radiance = acc / np.float32(n) if n > 1 else acc
             if idr is None:  # ids and visibility at mid-exposure (the instant of the ground truth)

@@ -427,8 +427,9 @@ class Rasterizer:
         H, W = height, width
         if "radiance" in outputs:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
-            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGB, gl.GL_FLOAT)
-            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 3)
+            # RGBA then drop alpha: Mesa converts RGBA -> RGB on read-back at 3x the cost.
+            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGBA, gl.GL_FLOAT)
+            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 4)[..., :3]
         if "radiance_red" in outputs:  # monochrome (IR) sensors: one channel is enough
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
