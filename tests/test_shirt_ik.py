@@ -47,7 +47,7 @@ def _constraints(model, ik, cams, q) -> Constraints:
         index = -np.ones(model.n_patches, int)
         index[use] = np.arange(use.size)
         parts.append(Constraints(np.full(use.size, ci), use, np.zeros((use.size, 2)), np.repeat(np.eye(2)[None], use.size, 0),
-                                 np.full(use.size, 300.0), index[pa], ba, pt, wa))
+                                 np.full(use.size, 300.0), np.zeros(use.size, bool), index[pa], ba, pt, wa))
     cons = Constraints.concatenate(parts)
     cons.target_px = ik.centroids(q, cons)[0]
     return cons

@@ -39,7 +39,7 @@ from mocap.calibration import Camera
 from mocap.errors import InputFileError, MocapInputError
 from mocap.shirt.shirt_model import UPPER_NV, ShirtKinematics
 
-__all__ = ["Constraints", "IKPriors", "ShirtIK", "IKResult", "train_priors"]
+__all__ = ["Constraints", "Silhouette", "IKPriors", "ShirtIK", "IKResult", "train_priors"]
 
 
 @dataclass
@@ -57,6 +57,11 @@ class Constraints:
         Whitening of the residual in pixels (``L^-1`` of its covariance).
     size_px : (n,) float
         The shirt's size in that camera's image (side of its tiny-map square), pixels.
+    absent : (n,) bool
+        *Absence* constraints: the patch is not seen in this camera although the model
+        shows it there, so it must be hidden, i.e. project inside the seen shirt; the
+        residual is the distance from its model centroid to the nearest classified shirt
+        pixel (:class:`Silhouette`), and ``target_px`` is unused.
     anchor_of : (A,) int
         Constraint index of each anchor.
     anchor_body : (A,) int
@@ -72,6 +77,7 @@ class Constraints:
     target_px: np.ndarray
     sqrt_info: np.ndarray
     size_px: np.ndarray
+    absent: np.ndarray
     anchor_of: np.ndarray
     anchor_body: np.ndarray
     anchor_point_m: np.ndarray
@@ -83,7 +89,7 @@ class Constraints:
     @classmethod
     def empty(cls) -> "Constraints":
         z = np.zeros(0, int)
-        return cls(z, z, np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), z, z, np.zeros((0, 3)), np.zeros(0))
+        return cls(z, z, np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0), np.zeros(0, bool), z, z, np.zeros((0, 3)), np.zeros(0))
 
     @classmethod
     def concatenate(cls, parts: list["Constraints"]) -> "Constraints":
@@ -94,7 +100,7 @@ class Constraints:
         return cls(
             np.concatenate([p.camera for p in parts]), np.concatenate([p.patch for p in parts]),
             np.concatenate([p.target_px for p in parts]), np.concatenate([p.sqrt_info for p in parts]),
-            np.concatenate([p.size_px for p in parts]),
+            np.concatenate([p.size_px for p in parts]), np.concatenate([p.absent for p in parts]),
             np.concatenate([p.anchor_of + o for p, o in zip(parts, offs)]), np.concatenate([p.anchor_body for p in parts]),
             np.concatenate([p.anchor_point_m for p in parts]), np.concatenate([p.anchor_weight for p in parts]),
         )
@@ -105,7 +111,45 @@ class Constraints:
         new[keep] = np.arange(int(keep.sum()))
         a = keep[self.anchor_of]
         return Constraints(self.camera[keep], self.patch[keep], self.target_px[keep], self.sqrt_info[keep], self.size_px[keep],
-                           new[self.anchor_of[a]], self.anchor_body[a], self.anchor_point_m[a], self.anchor_weight[a])
+                           self.absent[keep], new[self.anchor_of[a]], self.anchor_body[a], self.anchor_point_m[a], self.anchor_weight[a])
+
+
+@dataclass(frozen=True, eq=False)
+class Silhouette:
+    """Distance (image pixels) to the nearest classified shirt pixel over one camera's crop.
+
+    Attributes
+    ----------
+    distance_px : (h, w) float32
+        At the crop's working pixels.
+    x0, y0, scale : float
+        Image position of working pixel (0, 0) and image pixels per working pixel.
+    """
+
+    distance_px: np.ndarray
+    x0: float
+    y0: float
+    scale: float
+
+    def __post_init__(self) -> None:
+        gy, gx = np.gradient(np.asarray(self.distance_px, np.float64))
+        object.__setattr__(self, "_grad", (gx / self.scale, gy / self.scale))
+
+    def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance ``(n,)`` px at image points ``(n, 2)`` (bilinear, clamped) and its gradient ``(n, 2)`` per image px."""
+        D = self.distance_px
+        h, w = D.shape
+        x = np.clip((uv[:, 0] - self.x0) / self.scale, 0, w - 1.001)
+        y = np.clip((uv[:, 1] - self.y0) / self.scale, 0, h - 1.001)
+        i, j = np.floor(y).astype(int), np.floor(x).astype(int)
+        fy, fx = y - i, x - j
+
+        def bil(M: np.ndarray) -> np.ndarray:
+            return (M[i, j] * (1 - fx) * (1 - fy) + M[i, j + 1] * fx * (1 - fy) + M[i + 1, j] * (1 - fx) * fy
+                    + M[i + 1, j + 1] * fx * fy)
+
+        gx, gy = self._grad
+        return bil(D), np.stack([bil(gx), bil(gy)], axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -311,7 +355,8 @@ class ShirtIK:
 
     # ------------------------------------------------------------------ solve
     def solve(self, q0: np.ndarray, cons: Constraints, priors: list[tuple[np.ndarray, np.ndarray]] = (),
-              active: np.ndarray | None = None, iterations: int = 10, damping: float = 1e-3) -> IKResult:
+              active: np.ndarray | None = None, iterations: int = 10, damping: float = 1e-3,
+              silhouettes: dict[int, Silhouette] | None = None) -> IKResult:
         """Minimise the energy from ``q0``.
 
         Parameters
@@ -322,20 +367,34 @@ class ShirtIK:
             Terms ``|difference(q_ref, q) / std|^2``.
         active : (17,) bool, optional
             Tangent components that may move (default all; the 6-DoF fit uses the root's).
+        silhouettes : dict camera index -> Silhouette, optional
+            Needed by absence constraints (``cons.absent``); without them those are ignored.
         """
         nv = self.model.nv
+        absent = np.asarray(cons.absent, bool) & np.isin(cons.camera, list((silhouettes or {}).keys()))
+        present = ~absent & ~np.asarray(cons.absent, bool)
         act = np.ones(nv, bool) if active is None else np.asarray(active, bool)
         pri = [_Prior(np.asarray(qr, float), 1.0 / np.asarray(sd, float)) for qr, sd in priors]
         q = self.kin.clamp(np.asarray(q0, float))
 
         def residuals(qc: np.ndarray, jac: bool):
             c, Jc = self.centroids(qc, cons, jac)
-            e = c - cons.target_px
+            e = np.where(present[:, None], c - cons.target_px, 0.0)
             r = np.einsum("nij,nj->ni", cons.sqrt_info, e)  # (n, 2) whitened
+            Jr = np.einsum("nij,njk->nik", cons.sqrt_info, Jc) if jac else None
+            Jr = np.where(present[:, None, None], Jr, 0.0) if jac else None
+            for ci in np.unique(cons.camera[absent]):
+                sel = np.flatnonzero(absent & (cons.camera == ci))
+                d, g = silhouettes[int(ci)].sample(c[sel])
+                inv = cons.sqrt_info[sel, 0, 0]
+                r[sel, 0], r[sel, 1] = d * inv, 0.0
+                if jac:
+                    Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
+                    Jr[sel, 1] = 0.0
             norm = np.linalg.norm(r, axis=1)
             w = np.where(norm > self.huber, np.sqrt(self.huber / np.maximum(norm, 1e-12)), 1.0)
             rs = [(r * w[:, None]).ravel()]
-            Js = [(np.einsum("nij,njk->nik", cons.sqrt_info, Jc) * w[:, None, None]).reshape(-1, nv)] if jac else []
+            Js = [(Jr * w[:, None, None]).reshape(-1, nv)] if jac else []
             for p in pri:
                 d = pin.difference(self.model, p.q_ref, qc)
                 rs.append(d * p.inv_std)
@@ -374,5 +433,6 @@ class ShirtIK:
             if not improved or np.linalg.norm(step) < 1e-6:
                 break
             r, J, cost, e = residuals(q, True)
+        e = e[present]
         rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
         return IKResult(q, cost, it, rms)

@@ -41,7 +41,7 @@ from mocap.shirt.classify import (Classification, assign_patches, best_reference
                                   patch_centroids)
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, labelled_colour_means, solve_white_balance
 from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation, search_shirt
-from mocap.shirt.ik import Constraints, IKPriors, ShirtIK
+from mocap.shirt.ik import Constraints, IKPriors, ShirtIK, Silhouette
 from mocap.shirt.pose_database import Neighbours, PoseDatabase, TinyMap, blend_poses, blend_weights, tiny_id_map
 from mocap.shirt.shirt_model import UPPER_NQ, UPPER_NV, CropView, ShirtModel, look_at_view
 
@@ -72,7 +72,14 @@ class ShirtPipelineParams:
     background : BackgroundParams or None
         None: no background subtraction.
     crop_factor : float
-        The classified crop is this many times the histogram search's scale ``s``.
+        The classified crop (centred where the histogram search found the shirt) is at
+        least this many times the search's scale ``s`` ...
+    crop_factor_first : float
+        ... (this many on a first frame) ...
+    crop_margin : float
+        ... and large enough to hold the previous pose's shirt, with this margin: the
+        search's scale follows the most colourful part (the torso), the crop must hold
+        the arms.
     work_size : int
         Working resolution of the crop (pixels per side, at most).
     wb_size : int
@@ -105,6 +112,11 @@ class ShirtPipelineParams:
         Step 4 solves, each after splitting the colours into patches with the pose of
         the previous solve (the first uses the blended pose, as the paper; more passes
         are an addition for a database far from the pose).
+    absence_constraints : bool
+        Add, for each patch the pose shows in a camera that does not see it at all, a
+        term pulling it inside the seen shirt (where it can be hidden).  An addition to
+        the paper's centroid constraints: without it a limb seen by one camera only can
+        swing along that camera's rays.
     global_fit_std : float
         Assumed error of the blended pose's centroids, in shirt sizes (6-DoF fit weights).
     baseline_damping_std : float
@@ -116,7 +128,9 @@ class ShirtPipelineParams:
 
     histogram: HistogramSearchParams = HistogramSearchParams()
     background: BackgroundParams | None = BackgroundParams()
-    crop_factor: float = 6.0
+    crop_factor: float = 4.5
+    crop_factor_first: float = 6.0
+    crop_margin: float = 1.2
     work_size: int = 144
     wb_size: int = 64
     render_size: int = 72
@@ -132,6 +146,7 @@ class ShirtPipelineParams:
     global_iterations: int = 10
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
+    absence_constraints: bool = True
     global_fit_std: float = 0.03
     baseline_damping_std: float = 3.0
     keep_classification: bool = False
@@ -158,6 +173,7 @@ class CameraObservation:
     ray_rotation: np.ndarray | None = None
     W: np.ndarray | None = None
     foreground: np.ndarray | None = None
+    silhouette: Silhouette | None = None
     n_constraints: int = 0
 
 
@@ -192,6 +208,12 @@ def _reduced(view: CropView, size: int) -> CropView:
     """The same square as ``view`` sampled with ``size`` pixels per side."""
     r = view.size / size
     return CropView(view.x0 + 0.5 * view.scale * (r - 1.0), view.y0 + 0.5 * view.scale * (r - 1.0), view.scale * r, size)
+
+
+def _silhouette(colour: np.ndarray, view: CropView) -> Silhouette:
+    """Distance (image pixels) from every working pixel of a crop to the nearest classified shirt pixel."""
+    dt = cv2.distanceTransform((colour < 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return Silhouette(dt * np.float32(view.scale), view.x0, view.y0, view.scale)
 
 
 def initial_white_balance(image: np.ndarray, labels: np.ndarray, colour_model: ColourModel) -> np.ndarray:
@@ -257,6 +279,7 @@ class ShirtTracker:
                 for bg, frames in zip(self.backgrounds, empty_frames):
                     bg.learn_empty(frames)
         self.q_prev: np.ndarray | None = None
+        self._prev_box: list[tuple[np.ndarray, np.ndarray] | None] = [None] * C
         self._first_fraction: list[float | None] = [None] * C
         self._root_active = np.zeros(UPPER_NV, bool)
         self._root_active[:6] = True
@@ -288,22 +311,26 @@ class ShirtTracker:
         return box_c, box_s, self.model.patch_anchors(rend), cents_m, counts
 
     def _constraints(self, ci: int, targets_px: np.ndarray, ok: np.ndarray, anchors, sqrt_info: np.ndarray,
-                     size_px: float) -> Constraints:
-        """Constraints of camera ``ci`` for the patches that are measured (``ok``) and rendered (have anchors).
+                     size_px: float, absent: np.ndarray | None = None) -> Constraints:
+        """Constraints of camera ``ci`` for the patches that are measured (``ok``) and rendered (have anchors),
+        and absence constraints for rendered patches flagged ``absent``.
 
         ``targets_px`` and ``sqrt_info`` are per patch: ``(P, 2)`` and ``(P, 2, 2)``.
         """
         patch_a, body_a, point_a, weight_a = anchors
-        has = np.zeros(self.model.n_patches, bool)
+        P = self.model.n_patches
+        has = np.zeros(P, bool)
         has[patch_a] = True
-        use = np.flatnonzero(ok & has & np.all(np.isfinite(targets_px), axis=1))
+        seen = ok & has & np.all(np.isfinite(targets_px), axis=1)
+        miss = has & ~seen & (np.zeros(P, bool) if absent is None else absent)
+        use = np.flatnonzero(seen | miss)
         if use.size == 0:
             return Constraints.empty()
-        index = -np.ones(self.model.n_patches, int)
+        index = -np.ones(P, int)
         index[use] = np.arange(use.size)
         a = index[patch_a] >= 0
-        return Constraints(np.full(use.size, ci), use, targets_px[use], sqrt_info[use], np.full(use.size, float(size_px)),
-                           index[patch_a[a]], body_a[a], point_a[a], weight_a[a])
+        return Constraints(np.full(use.size, ci), use, np.where(seen[use, None], np.nan_to_num(targets_px[use]), 0.0), sqrt_info[use],
+                           np.full(use.size, float(size_px)), miss[use], index[patch_a[a]], body_a[a], point_a[a], weight_a[a])
 
     # ------------------------------------------------------------------ one frame
     def process(self, images: list[np.ndarray]) -> FrameEstimate:
@@ -325,19 +352,21 @@ class ShirtTracker:
                 priors.append((self.q_prev, self.priors.motion_std))
         else:
             priors = [(q_b, np.full(UPPER_NV, p.baseline_damping_std))]
+        sil = {ci: o.silhouette for ci, o in enumerate(est.cameras) if o.silhouette is not None}
         if len(cons):
-            res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations)
+            res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
+                                silhouettes=sil)
             if p.pose_prior and self.q_prev is not None and est.q_prior is not self.q_prev:
                 # also start from the previous pose (a blend far off can hold the solver in a
                 # local minimum); keep the lower energy
-                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations)
+                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil)
                 res = alt if alt.cost < res.cost else res
             for _ in range(p.correspondence_passes - 1):
                 # the two patches of a colour were told apart (and anchored) by the blended
                 # pose; a blend far off swaps them: split again with the solved pose
                 cons2 = self.reassign(res.q, est.cameras, lin)
                 if len(cons2):
-                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations)
+                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil)
             q = res.q
         else:
             q = q_b.copy()
@@ -359,6 +388,16 @@ class ShirtTracker:
                 if o.tiny is not None and lin[ci] is not None:
                     self._update_white_balance(ci, q, o, lin[ci])
         self.q_prev = np.asarray(q, float).copy()
+        # where the shirt of this pose is in every image (the next crop must hold it)
+        P = self.model.shirt_vertices(self.q_prev)
+        for ci, cam in enumerate(self.cameras):
+            Xc = P @ cam.R.T + cam.t
+            ok = Xc[:, 2] > 0.05
+            if ok.sum() < 3:
+                self._prev_box[ci] = None
+                continue
+            uv = Xc[ok, :2] / Xc[ok, 2:3] * [cam.K[0, 0], cam.K[1, 1]] + cam.K[:2, 2]
+            self._prev_box[ci] = (uv.min(axis=0), uv.max(axis=0))
 
     def observe(self, images: list[np.ndarray]) -> tuple[FrameEstimate, Constraints, list[np.ndarray | None]]:
         """Steps 0-3 of a frame: the blended pose (``q_blend``) and the centroid constraints of step 4.
@@ -396,7 +435,13 @@ class ShirtTracker:
             loc = obs[ci].location
             if loc is None:
                 continue
-            view = crop_view(loc.x, loc.y, p.crop_factor * loc.s, p.work_size)
+            side = (p.crop_factor if self.q_prev is not None else p.crop_factor_first) * loc.s
+            if self._prev_box[ci] is not None:
+                lo, hi = self._prev_box[ci]
+                reach = np.max(np.abs(np.array([lo, hi]) - [loc.x, loc.y]))
+                side = max(side, 2.0 * reach * p.crop_margin)
+            side = min(side, 2.0 * max(img.shape[:2]))
+            view = crop_view(loc.x, loc.y, side, p.work_size)
             work = crop_image(img, view)
             lin[ci] = SRGB_TO_LINEAR[work]
             if masks[ci] is not None:
@@ -468,6 +513,7 @@ class ShirtTracker:
             else:
                 final = o.step1
             o.final = final
+            o.silhouette = _silhouette(final.colour, o.view)
             fractions[ci] = final.classified_fraction
             cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend)
             o.n_constraints = len(cons)
@@ -518,13 +564,19 @@ class ShirtTracker:
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
                             rend) -> Constraints:
-        """Centroid constraints of one camera: classified colours split into patches by a rendered pose."""
+        """Centroid constraints of one camera: classified colours split into patches by a rendered pose;
+        absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer than min_patch_pixels)."""
+        p = self.params
         pm = assign_patches(colour, idx, pdist, self.model.patch_colour)
         cents, counts = patch_centroids(pm, self.model.n_patches)
         size_px = o.tiny.side * o.view.scale
         info = self.priors.centroid_sqrt_info(np.arange(self.model.n_patches), size_px)
-        return self._constraints(ci, o.view.to_image(cents), counts >= self.params.min_patch_pixels, self.model.patch_anchors(rend),
-                                 info, size_px)
+        absent = None
+        if p.absence_constraints:
+            shown = np.bincount(rend.patch[rend.patch >= 0].ravel().astype(np.int64), minlength=self.model.n_patches)
+            absent = (counts < p.min_patch_pixels) & (shown >= 8)
+        return self._constraints(ci, o.view.to_image(cents), counts >= p.min_patch_pixels, self.model.patch_anchors(rend),
+                                 info, size_px, absent)
 
     def reassign(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> Constraints:
         """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
