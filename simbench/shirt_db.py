@@ -265,7 +265,18 @@ def bench_shirt_command(
     scenario: Optional[Path] = typer.Option(None, "--scenario", help="shirt scenario (default scenarios/shirt_office.toml)"),
 ) -> None:
     """ms per 2-camera frame of the colour-shirt pipeline per stage, one core, with references."""
+    import subprocess
+    import sys
+
     from simbench.cli import user_errors
+
+    one_core = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "LP_NUM_THREADS": "1"}
+    if any(os.environ.get(k) != v for k, v in one_core.items()):
+        # BLAS reads its thread count when it is loaded: measure in a fresh process
+        args = [sys.executable, "-m", "simbench.cli", "bench", "shirt", "--frames", str(frames)]
+        if scenario is not None:
+            args += ["--scenario", str(scenario)]
+        raise typer.Exit(subprocess.run(args, env={**os.environ, **one_core}).returncode)
     from simbench.shirt_run import run_shirt_benchmark
 
     user_errors(run_shirt_benchmark)(n_frames=frames, scenario_path=str(scenario) if scenario else None)

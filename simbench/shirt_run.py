@@ -467,13 +467,10 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     histogram (one histogram per window), and the baseline pipeline; and the paper's
     reported 120 ms per frame (Java, Core 2 Quad 2.4 GHz, 2011; a stated figure, not measured).
     """
-    import os
-
     import faiss
 
     cv2.setNumThreads(1)
     faiss.omp_set_num_threads(1)
-    os.environ["OMP_NUM_THREADS"] = "1"
     from simbench.render.gl_context import configure_gl_environment
 
     configure_gl_environment()
@@ -487,7 +484,7 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     sc = sc.with_overrides({"duration_s": (n_frames + 3) / sc.fps, "motion.start_s": 1.0})
     bench = Bench.from_scenario(sc)
     echo(f"simbench shirt benchmark: {sc.name}, {len(bench.cameras)} cameras {bench.cameras[0].width}x{bench.cameras[0].height}, "
-         f"{n_frames} frames timed after 3 warm-up frames, one core (cv2, faiss 1 thread)")
+         f"{n_frames} frames timed after 3 warm-up frames, one core (BLAS, OpenCV, faiss: 1 thread)")
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     gt = seq.ground_truth
     cfg = sc.shirt_pipeline

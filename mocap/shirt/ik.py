@@ -294,31 +294,26 @@ class ShirtIK:
         if jacobians:
             pin.computeJointJacobians(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        used = np.unique(cons.anchor_body)
-        R = {}
-        p = {}
-        J = {}
-        for b in used:
+        used, inv = np.unique(cons.anchor_body, return_inverse=True)
+        R = np.empty((len(used), 3, 3))
+        p = np.empty((len(used), 3))
+        Jb = np.empty((len(used), 6, self.model.nv)) if jacobians else None
+        for i, b in enumerate(used):
             f = self.frames[b]
             M = self.data.oMf[f]
-            R[b], p[b] = M.rotation, M.translation
+            R[i], p[i] = M.rotation, M.translation
             if jacobians:
-                J[b] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        A = len(cons.anchor_body)
-        X = np.empty((A, 3))
-        JX = np.empty((A, 3, self.model.nv)) if jacobians else None
-        for b in used:
-            sel = cons.anchor_body == b
-            r = cons.anchor_point_m[sel] @ R[b].T
-            X[sel] = r + p[b]
-            if jacobians:
-                Jl, Ja = J[b][:3], J[b][3:]
-                # v_point = v_origin + w x r = Jl - [r]x Ja
-                cross = np.zeros((len(r), 3, 3))
-                cross[:, 0, 1], cross[:, 0, 2] = -r[:, 2], r[:, 1]
-                cross[:, 1, 0], cross[:, 1, 2] = r[:, 2], -r[:, 0]
-                cross[:, 2, 0], cross[:, 2, 1] = -r[:, 1], r[:, 0]
-                JX[sel] = Jl[None] - cross @ Ja
+                Jb[i] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        r = np.einsum("aij,aj->ai", R[inv], cons.anchor_point_m)
+        X = r + p[inv]
+        if not jacobians:
+            return X, None
+        # v_point = v_origin + w x r = Jl - [r]x Ja
+        Jl, Ja = Jb[inv, :3], Jb[inv, 3:]
+        JX = Jl.copy()
+        JX[:, 0] -= r[:, 1, None] * Ja[:, 2] - r[:, 2, None] * Ja[:, 1]
+        JX[:, 1] -= r[:, 2, None] * Ja[:, 0] - r[:, 0, None] * Ja[:, 2]
+        JX[:, 2] -= r[:, 0, None] * Ja[:, 1] - r[:, 1, None] * Ja[:, 0]
         return X, JX
 
     def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False):

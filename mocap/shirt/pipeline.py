@@ -21,6 +21,22 @@ centroid IK started from the blended pose, but no pose prior (no step 3, no prio
 terms in the IK) and no adaptive white balance (``W`` stays the one of the labelled
 first frame; no reference search, no step 5).
 
+Additions to the paper, each with its reason where it is made (both methods get the
+first four, the last two belong to the pose prior):
+
+* not-shirt colours of the session (trousers, skin, the set next to the subject) from
+  the labelled first frame keep dark trousers and grey walls out of the black and
+  light-grey patches (:func:`mocap.shirt.colour_model.train_other_colours`);
+* the crop holds the previous pose's shirt (the search's scale follows the torso);
+* the colours are split into patches a second time with the solved pose, and the IK
+  solved again (``correspondence_passes``);
+* patches the pose shows where a camera sees none are pulled inside the seen shirt
+  (``absence_constraints``);
+* the pose prior of steps 3-4 is the blend or the previous pose, whichever agrees
+  better with step 1 (the database here samples the joint ranges uniformly, so its
+  blends can be far off); step 4 also starts from the previous pose;
+* the 40 % trigger of the reference search is relative to the first frame's fraction.
+
 Every stage is timed (``FrameEstimate.timings_ms``).
 """
 
@@ -496,14 +512,14 @@ class ShirtTracker:
 
         # 3. pose-assisted classification, patch centroids, constraints
         t = clock()
-        prior_pose = self._prior_pose(q_b, obs, seen, lin, fgs) if p.pose_prior else q_b
+        prior_pose, renders = self._prior_pose(q_b, obs, seen, lin, fgs) if p.pose_prior else (q_b, {})
         parts = []
         fractions = np.zeros(C)
         for ci in seen:
             o = obs[ci]
             cam = self.cameras[ci]
             # the prior pose's id map at a reduced resolution: distance transforms and anchors
-            rend, idx, pdist = self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
+            rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
             if p.pose_prior:
                 cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
                                   for m in self._colour_members]) * np.float32(o.view.scale)
@@ -530,37 +546,55 @@ class ShirtTracker:
         idx = foreground_pixels(lin, fg)[0]
         return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size)
 
-    def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list) -> np.ndarray:
+    def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
+        p = self.params
         """The pose whose id map steps 3 and 4 use: the blended pose, or the previous frame's when that one agrees
         better with the step-1 classification.
 
         Not in seed 001, whose database covers realistic poses densely; a database sampled
         uniformly over the joint ranges gives blends that can be far off, while the
         previous pose of a tracked sequence is usually a few centimetres away.  Agreement:
-        the fraction of classified pixels within 4 % of the shirt's size of a rendered
-        pixel of their colour, over all cameras.
+        the fraction of classified pixels that the pose's id map (at the reduced
+        resolution) shows with their colour within one cell, over all cameras.
+
+        Returns the pose and its renders ``{camera: (rendered, pixel indices, patch distances)}``.
         """
         if self.q_prev is None:
-            return q_b
-        scores = []
+            return q_b, {}
+        scores, renders = [], []
         for q in (q_b, self.q_prev):
             hit = tot = 0
+            renders.append({})
             for ci in seen:
                 o = obs[ci]
-                _, idx, pdist = self._render_distances(q, ci, o, lin[ci], fgs[ci])
+                rview = _reduced(o.view, p.render_size)
+                rend = self.model.render_camera(q, self.cameras[ci], rview)
+                renders[-1][ci] = rend
+                idx = foreground_pixels(lin[ci], fgs[ci])[0]
                 col = o.step1.colour.ravel()[idx]
                 on = col >= 0
                 if not on.any():
                     continue
-                d = np.full(len(idx), np.inf, np.float32)
-                for k, m in enumerate(self._colour_members):
-                    sel = on & (col == k)
-                    if sel.any() and m.size:
-                        d[sel] = pdist[m][:, sel].min(axis=0)
-                hit += int(np.sum(d[on] * o.view.scale <= 0.04 * o.tiny.side * o.view.scale))
+                # the rendered colour at (or next to) each classified pixel: a 3x3 max-filter of
+                # each colour's mask at the render's resolution (a few image pixels per cell)
+                ys, xs = np.divmod(idx[on], o.view.size)
+                r = rend.colour.shape[0]
+                cy = np.minimum((ys * r) // o.view.size, r - 1)
+                cx = np.minimum((xs * r) // o.view.size, r - 1)
+                match = np.zeros(on.sum(), bool)
+                for dy in (-1, 0, 1):
+                    for dx in (-1, 0, 1):
+                        yy, xx = np.clip(cy + dy, 0, r - 1), np.clip(cx + dx, 0, r - 1)
+                        match |= rend.colour[yy, xx] == col[on]
+                hit += int(match.sum())
                 tot += int(on.sum())
             scores.append(hit / max(tot, 1))
-        return self.q_prev if scores[1] > scores[0] else q_b
+        best = 1 if scores[1] > scores[0] else 0
+        out = {}
+        for ci, rend in renders[best].items():
+            idx = foreground_pixels(lin[ci], fgs[ci])[0]
+            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size))
+        return (self.q_prev if best else q_b), out
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
                             rend) -> Constraints:

@@ -307,7 +307,7 @@ class PoseDatabase:
     def view_rotation(self, i: np.ndarray) -> np.ndarray:
         return Rotation.from_quat(self.view_quat[np.asarray(i)]).as_matrix()
 
-    def search(self, tiny: np.ndarray, k: int = 10, candidates: int = 64, ef_search: int = 96) -> Neighbours:
+    def search(self, tiny: np.ndarray, k: int = 10, candidates: int = 32, ef_search: int = 64) -> Neighbours:
         """The ``k`` entries nearest to a tiny map ``(40, 40)``: HNSW on the projections, exact re-ranking."""
         K = self.n_colours
         q = encode_tiny(tiny, K)
