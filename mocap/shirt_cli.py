@@ -122,7 +122,8 @@ def shirt(
     W0 = [initial_white_balance(seqs[ci][0], labels[ci], cm) for ci in range(len(paths))]
     other = train_other_colours([s[0] for s in seqs], labels, W0, np.random.default_rng(seed))
     empty_frames = [_read_frames(p, 0, 5) for p in empty] if empty else None
-    params = ShirtPipelineParams()
+    # without frames of the empty scene a background model would learn the subject: none then
+    params = ShirtPipelineParams() if empty_frames is not None else ShirtPipelineParams(background=None)
     tracker = ShirtTracker(db, cm, pr, cal, W0, params.baseline() if baseline else params, empty_frames, other)
     q = np.full((n, tracker.kin.nq), np.nan)
     timings = np.zeros((n, len(STAGES)))

@@ -41,7 +41,7 @@ from simbench.bench import Bench
 from simbench.render import ids as idc
 from simbench.render.frames import Pose, frame_rng
 from simbench.scenario import Scenario
-from simbench.shirt_db import PoseSampling, cache_dir, database_key, ensure_database
+from simbench.shirt_db import PoseSampling, cache_dir, database_key, default_database_path, ensure_database
 
 __all__ = [
     "TRAINING_TAKES",
@@ -455,7 +455,25 @@ def run_shirt_capture(bench: Bench, frames: np.ndarray, gt, out_dir: Path | None
         np.savez(out / "shirt" / "poses.npz", times=gt.times, joint_names=np.array(UPPER_BODY_JOINTS),
                  **{f"{n}_q": r.q for n, r in runs.items()}, **{f"{n}_qpos": model.kin.to_full_qpos(r.q) for n, r in runs.items()},
                  **{f"{n}_joint_centres_m": model.kin.joint_centres(r.q) for n, r in runs.items()})
-        lines += ["Estimated poses: `shirt/poses.npz` (upper-body q, MuJoCo qpos with the other hinges at zero, joint centres).", ""]
+        # what `mocap shirt` needs to run on this take's videos: colour model, covariances, scribbles
+        training.colour_model.save(out / "shirt" / "colour_model.npz")
+        training.priors.save(out / "shirt" / "ik_priors.npz")
+        for ci, name in enumerate(gt.camera_names):
+            lab = scribble_labels(gt.id_maps[name][0], pc)
+            png = np.where(lab >= 0, lab + 1, np.where(lab == NOT_SHIRT, 255, 0)).astype(np.uint8)
+            cv2.imwrite(str(out / "shirt" / f"scribbles_{name}.png"), png)
+        from simbench.render.video import Mp4Writer
+
+        for ci, name in enumerate(gt.camera_names):
+            w = Mp4Writer(out / "shirt" / f"empty_{name}.mp4", frames.shape[3], frames.shape[2], sc.fps)
+            for f in empty[ci]:
+                w.write(f)
+            w.close()
+        (out / "shirt" / "database.txt").write_text(str(cfg.database or default_database_path(bench.params, sampling)) + "\n")
+        lines += ["Estimated poses: `shirt/poses.npz` (upper-body q, MuJoCo qpos with the other hinges at zero, joint centres). "
+                  "For `mocap shirt` on `videos/*.mp4`: `shirt/colour_model.npz`, `shirt/ik_priors.npz`, "
+                  "`shirt/scribbles_<camera>.png` (frame 0), `shirt/empty_<camera>.mp4` (the empty scene) and the database named "
+                  "in `shirt/database.txt`.", ""]
     return metrics, lines
 
 
