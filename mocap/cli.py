@@ -95,6 +95,55 @@ def markers(
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out}/")
 
 
+@app.command()
+@user_errors
+def calibrate(
+    cameras: list[str] = typer.Argument(..., help="one name=path per camera: a folder of images, a video or an image; "
+                                                  "view i of every camera is the same moment"),
+    out: str = typer.Option(..., "--out", help="output stem: writes STEM.toml (anipose), STEM.yml (OpenCV), STEM.report.json"),
+    board: str = typer.Option("checkerboard", "--board", help="'checkerboard' or 'charuco'"),
+    board_size: str = typer.Option("9x6", "--board-size", help="checkerboard: inner corners; ChArUco: squares (cols x rows)"),
+    square_mm: float = typer.Option(25.0, "--square-mm", help="side of one printed square (measure it)"),
+    marker_mm: Optional[float] = typer.Option(None, "--marker-mm", help="ChArUco marker side"),
+    dictionary: str = typer.Option("DICT_4X4_50", "--board-dictionary", help="ChArUco ArUco dictionary"),
+    legacy_charuco: bool = typer.Option(False, "--legacy-charuco", help="ChArUco board made by OpenCV < 4.6"),
+    wand_file: Optional[str] = typer.Option(None, "--wand-file", help=".npz with markers_px or blobs_px (C, F, 3, 2)"),
+    wand_distances_mm: Optional[str] = typer.Option(None, "--wand-distances-mm", help="'d01,d12' (collinear) or 'd01,d12,d02'"),
+    intrinsics: Optional[str] = typer.Option(None, "--intrinsics", help="calibration file whose intrinsics are known"),
+    reference: Optional[str] = typer.Option(None, "--reference", help="camera fixed in the bundle adjustment"),
+    floor_view: Optional[str] = typer.Option(None, "--floor-view", help="index or file name of the view with the board on the floor (world frame)"),
+    world_camera: Optional[str] = typer.Option(None, "--world-camera", help="without --floor-view: camera whose frame is the world"),
+    fix_aspect_ratio: bool = typer.Option(False, "--fix-aspect-ratio"),
+    fix_principal_point: bool = typer.Option(False, "--fix-principal-point"),
+    zero_tangent: bool = typer.Option(False, "--zero-tangent"),
+    k3: str = typer.Option("auto", "--k3", help="'auto' (kept if it pays off), 'free' or 'fixed'"),
+    min_views: int = typer.Option(5, "--min-views", help="fewest usable views per camera"),
+    refine_intrinsics: bool = typer.Option(True, "--refine-intrinsics/--no-refine-intrinsics"),
+    loss: str = typer.Option("soft_l1", "--loss", help="bundle adjustment loss"),
+    ba_max_evaluations: int = typer.Option(300, "--ba-max-evaluations"),
+    frame_step: int = typer.Option(1, "--frame-step", help="videos: use every n-th frame"),
+    blur_threshold: float = typer.Option(20.0, "--blur-threshold", help="variance of Laplacian under which a failed view is called blurred"),
+) -> None:
+    """Calibrate cameras from pictures or videos of a board (and optionally a wand)."""
+    from mocap.calibrate import run_calibrate_cli
+
+    try:
+        result = run_calibrate_cli(cameras, out, board=board, board_size=board_size, square_mm=square_mm,
+                                   marker_mm=marker_mm, dictionary=dictionary, legacy_charuco=legacy_charuco,
+                                   wand_file=wand_file, wand_distances_mm=wand_distances_mm, intrinsics=intrinsics,
+                                   reference=reference, floor_view=floor_view, world_camera=world_camera,
+                                   fix_aspect_ratio=fix_aspect_ratio, fix_principal_point=fix_principal_point,
+                                   zero_tangent=zero_tangent, k3=k3, min_views=min_views,
+                                   refine_intrinsics=refine_intrinsics, loss=loss,
+                                   ba_max_evaluations=ba_max_evaluations, frame_step=frame_step,
+                                   blur_threshold=blur_threshold)
+    except ValueError as exc:  # BoardSpec / WandSpec field values (calibration errors: user_errors)
+        console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+    console.print(result.summary(), highlight=False)
+    console.print("wrote " + ", ".join(str(p) for p in result.written), highlight=False)
+
+
 from mocap import shirt_cli  # noqa: E402  (colour-shirt pipeline, issue 6)
 app.command("shirt")(user_errors(shirt_cli.shirt))
 

@@ -120,9 +120,23 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
         gt = seq.ground_truth
         metrics: dict[str, float] = {}
         capture = None
+        calibration = gt.calibration()
+        calib_report: list[str] = []
+        if scenario.calibration_scene is not None:
+            # Calibration session (simbench/calibration_run.py): render the board and wand
+            # pictures, run the calibration tool, score it. Its estimate is in the true
+            # world frame without alignment when the scene has a floor view (the floor
+            # board defines the world), else rigidly aligned to the true camera centres.
+            from simbench.calibration_run import run_calibration
+
+            t1 = time.perf_counter()
+            calib_metrics, calib_report, estimated = run_calibration(bench, tmp)
+            timings["calibration_s"] = time.perf_counter() - t1
+            metrics.update(calib_metrics)
+            if scenario.markers_pipeline.calibration == "estimated":
+                calibration = estimated
         if has_markers:
             t1 = time.perf_counter()
-            calibration = gt.calibration()
             template = label_template(bench)
             subject = subject_model(bench)
             rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x7AC]))
@@ -149,7 +163,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             cal.save_opencv_yaml(tmp / "calibration_ground_truth.yml")
             save_scenario_copy(scenario, tmp)
             if capture is not None:
-                export_capture(capture, tmp / "exports", gt.calibration(), subject_model(bench))
+                export_capture(capture, tmp / "exports", calibration, subject_model(bench))
                 save_template(label_template(bench), tmp / "exports" / "label_template.csv")
                 # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
                 subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
@@ -157,7 +171,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
             from simbench.report import write_run_report
 
-            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=shirt_report)
+            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report)
     except BaseException:
         if ctx is not None:
             ctx.__exit__(RuntimeError, None, None)

@@ -204,13 +204,56 @@ class ShirtPipelineConfig(_Model):
 
 
 class CalibrationSceneConfig(_Model):
+    """Calibration pictures taken before the take (``simbench/calibration_scene.py``).
+
+    A printed board is held still in ``n_views`` poses through the volume, each facing a
+    pair of cameras and tilted, plus (``floor_view``) one view of it lying on the floor
+    at the world origin, its rows along world x: that view defines the calibrated world.
+    Board pictures are taken in ``visible`` mode (room lights, the scenario's sensor
+    otherwise). A wand of three retro-reflective markers on a thin stick, ``wand_d01_m``
+    and ``wand_d12_m`` apart, is then waved through the volume for ``wand_frames`` frames
+    in ``ir`` mode.
+    """
+
     board: Literal["checkerboard", "charuco"] = "checkerboard"
-    board_cols: int = Field(9, ge=3)
-    board_rows: int = Field(6, ge=3)
-    square_m: float = Field(0.06, gt=0.0)
-    n_views: int = Field(40, ge=3)
+    board_cols: int = Field(9, ge=3, description="checkerboard: inner corners per row; ChArUco: squares per row")
+    board_rows: int = Field(6, ge=3, description="checkerboard: inner corners per column; ChArUco: squares per column")
+    square_m: float = Field(0.06, gt=0.0, le=0.5)
+    marker_m: float | None = Field(None, gt=0.0, description="ChArUco marker side (default 0.75 x square_m)")
+    dictionary: str = Field("DICT_4X4_50", description="ChArUco: OpenCV predefined ArUco dictionary")
+    board_thickness_m: float = Field(0.005, gt=0.0, le=0.05,
+                                     description="the floor board's printed face lies this far above the floor")
+    n_views: int = Field(40, ge=3, description="board poses in the air")
+    tilt_deg: tuple[float, float] = Field((15.0, 45.0), description="tilt range away from facing the camera pair")
+    max_view_angle_deg: float = Field(60.0, gt=10.0, lt=85.0,
+                                      description="largest angle between the board normal and a camera's line of sight")
+    floor_view: bool = Field(True, description="one view of the board lying on the floor at the world origin")
+    board_exposure_ms: float | None = Field(None, gt=0.0, le=200.0,
+                                            description="shutter of the board pictures (default: sensor.exposure_ms)")
     wand: bool = True
     wand_frames: int = Field(120, ge=0)
+    wand_d01_m: float = Field(0.2, gt=0.0, le=2.0, description="wand: marker 0 to the middle marker")
+    wand_d12_m: float = Field(0.3, gt=0.0, le=2.0, description="wand: middle marker to marker 2")
+    wand_marker_radius_m: float = Field(0.0125, gt=0.001, le=0.05)
+    volume_center: Vec3 = Field((0.0, 0.0, 1.0), description="centre of the volume the board and wand move through")
+    volume_half_m: Vec3 = Field((0.8, 0.8, 0.6), description="half extents of that volume")
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        lo, hi = self.tilt_deg
+        if not 0.0 <= lo <= hi <= 80.0:
+            raise ValueError(f"tilt_deg must be (low, high) with 0 <= low <= high <= 80, got {self.tilt_deg}")
+        if self.board == "checkerboard" and (self.board_cols + self.board_rows) % 2 == 0:
+            raise ValueError(f"a {self.board_cols}x{self.board_rows}-inner-corner checkerboard looks the same turned by "
+                             f"180 deg, so cameras number its corners differently; use one even and one odd count "
+                             f"(e.g. 9x6) or board = 'charuco'")
+        if self.board == "charuco" and self.marker_m is not None and self.marker_m >= self.square_m:
+            raise ValueError(f"marker_m = {self.marker_m} must be smaller than square_m = {self.square_m}")
+        ratio = self.wand_d01_m / self.wand_d12_m
+        if 0.8 < ratio < 1.25:
+            raise ValueError(f"wand_d01_m = {self.wand_d01_m} and wand_d12_m = {self.wand_d12_m} are too alike to tell "
+                             f"the wand's ends apart; make them differ by 25 % or more (e.g. 0.2 and 0.3)")
+        return self
 
 
 class Scenario(_Model):
@@ -242,6 +285,9 @@ class Scenario(_Model):
             raise ValueError(f"camera names must be unique, got {names}")
         if self.sensor.exposure_ms > 1000.0 / self.fps + 1e-9:
             raise ValueError(f"sensor.exposure_ms = {self.sensor.exposure_ms} exceeds the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
+        if self.markers_pipeline.calibration == "estimated" and self.calibration_scene is None:
+            raise ValueError("markers_pipeline.calibration = 'estimated' needs a [calibration_scene] section "
+                             "(the board and wand pictures the calibration is estimated from)")
         return self
 
     @property

@@ -151,8 +151,10 @@ def refine_corners(gray: np.ndarray, corners_px: np.ndarray, spacing_px: float) 
 def _find_chessboard(gray: np.ndarray, grid: tuple[int, int], exhaustive: bool) -> np.ndarray | None:
     ok, corners = cv2.findChessboardCornersSB(gray, grid, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not ok:
+        # FAST_CHECK: without it the classic detector spends 1-2 s on every 640x480 image
+        # that has no board (most of a multi-camera session: the board faces other cameras).
         ok, corners = cv2.findChessboardCorners(
-            gray, grid, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+            gray, grid, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
         )
     if not ok and exhaustive:
         ok, corners = cv2.findChessboardCornersSB(gray, grid, flags=_SB_EXHAUSTIVE)

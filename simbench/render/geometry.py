@@ -178,3 +178,89 @@ def moving_geometry(surface_parts, body_index: dict[str, int], n_markers: int,
         add(mesh_buffers(mesh, rgb, pid), "prop", k)
     # Offsets of each group's faces are handled by concat_buffers.
     return MovingGeometry(concat_buffers(bufs), groups)
+
+
+# ---------------------------------------------------------------------- calibration props
+BOARD_BACK_RGB = np.array([0.55, 0.55, 0.52])   # foam-board backing and edges
+WAND_STICK_RGB = np.array([0.05, 0.05, 0.05])   # matt black carbon stick
+
+
+def board_buffers(size_m: tuple[float, float], origin_m: tuple[float, float], thickness_m: float,
+                  board_id: int = ids.BOARD, cells: tuple[int, int] = (24, 18),
+                  back_rgb: np.ndarray = BOARD_BACK_RGB) -> GeometryBuffers:
+    """A printed calibration board in its own frame (see :mod:`mocap.calib.boards`).
+
+    Board frame: ``+x`` right and ``+y`` down on the printed face, ``+z`` into the board
+    (away from a viewer of the print); metres. The printed face is the plane ``z = 0``,
+    covering ``x in [-origin_m[0], size_m[0] - origin_m[0]]`` and ``y`` likewise, i.e.
+    the whole texture of :func:`mocap.calib.boards.render_board_texture` (board plus
+    white margin) whose layout gives ``size_m`` and ``origin_m``. It is a grid of
+    ``cells`` quads (lighting is per vertex) with ``uv`` in 0..1: ``u`` along ``+x``, ``v``
+    along ``+y`` (texture row 0 at the top edge). A box of ``thickness_m`` behind the
+    face (``z`` in ``[thickness_m / 10, thickness_m]``, untextured ``back_rgb``) hides the
+    print from cameras behind the board: the rasteriser shades surfaces two-sided, so
+    without it they would see the print mirrored.
+
+    Returns
+    -------
+    GeometryBuffers
+        Face and backing together, ids ``board_id``.
+    """
+    w, h = float(size_m[0]), float(size_m[1])
+    ox, oy = float(origin_m[0]), float(origin_m[1])
+    nx, ny = int(cells[0]), int(cells[1])
+    face = _grid_plane(w, h, nx, ny)
+    verts = np.asarray(face.vertices) + np.array([w / 2 - ox, h / 2 - oy, 0.0])
+    uv = np.column_stack([(verts[:, 0] + ox) / w, (verts[:, 1] + oy) / h])
+    n = len(verts)
+    front = GeometryBuffers(
+        positions=verts.astype(np.float32),
+        normals=np.tile(np.array([0.0, 0.0, -1.0], np.float32), (n, 1)),
+        albedo=np.ones((n, 3), np.float32),
+        ids=np.full(n, board_id, np.int32),
+        retro=np.zeros(n, np.float32),
+        faces=np.asarray(face.faces, np.uint32),
+        uv=uv.astype(np.float32),
+    )
+    depth = float(thickness_m) * 0.9
+    box = trimesh.creation.box((w, h, depth))
+    box.apply_translation([w / 2 - ox, h / 2 - oy, float(thickness_m) - depth / 2])
+    back = mesh_buffers(box, np.asarray(back_rgb, float), board_id)
+    return concat_buffers([front, back])
+
+
+def wand_geometry(marker_offsets_m: np.ndarray, marker_radius_m: float, stick_radius_m: float,
+                  marker_id_base: int = ids.MARKER_BASE, stick_id: int = ids.PROP_BASE,
+                  stick_rgb: np.ndarray = WAND_STICK_RGB, sphere_subdivisions: int = 2) -> MovingGeometry:
+    """A calibration wand: retro-reflective spheres on a thin stick.
+
+    Parameters
+    ----------
+    marker_offsets_m : (M,) float
+        Positions of the marker centres along the stick, metres from the stick frame's
+        origin (the stick runs along its frame's ``+z``, from the first to the last marker).
+    marker_radius_m, stick_radius_m : float
+    marker_id_base, stick_id : int
+        Id-map values of marker ``m`` (``marker_id_base + m``) and of the stick.
+
+    Returns
+    -------
+    MovingGeometry
+        Groups ``("marker", m, ...)`` posed by marker centre positions and
+        ``("prop", 0, ...)``, the stick, posed by its world-from-stick transform.
+    """
+    offs = np.asarray(marker_offsets_m, dtype=np.float64).ravel()
+    sphere = trimesh.creation.icosphere(subdivisions=sphere_subdivisions, radius=marker_radius_m)
+    parts, groups, start = [], [], 0
+    for m in range(len(offs)):
+        buf = mesh_buffers(sphere, MARKER_ALBEDO, marker_id_base + m, retro=MARKER_RETRO)
+        parts.append(buf)
+        groups.append(("marker", m, slice(start, start + len(buf.positions))))
+        start += len(buf.positions)
+    length = float(offs.max() - offs.min())
+    stick = trimesh.creation.cylinder(radius=stick_radius_m, height=length, sections=12)
+    stick.apply_translation([0.0, 0.0, float(offs.min()) + length / 2])
+    buf = mesh_buffers(stick, np.asarray(stick_rgb, float), stick_id)
+    parts.append(buf)
+    groups.append(("prop", 0, slice(start, start + len(buf.positions))))
+    return MovingGeometry(concat_buffers(parts), groups)
