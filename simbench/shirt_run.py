@@ -69,7 +69,7 @@ TRAINING_TAKES: tuple[tuple[str, float, int, str, float], ...] = (
 white balance (K) for it).  Each take is white-balanced for its light, as the paper's five
 labelled white-balanced images; three lights give the colour model the spread of a real shirt."""
 
-_TRAINING_VERSION = 5
+_TRAINING_VERSION = 6
 
 
 def colour_labels(id_map: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:
@@ -549,4 +549,13 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     echo(f"reference: histogram search, 1 camera, integral {t_int:.2f} ms vs naive per-window histograms {t_naive:.1f} ms "
          f"(same result: x {loc_i.x:.1f}/{loc_n.x:.1f}, s {loc_i.s:.1f}/{loc_n.s:.1f}); without foreground mask {t_int_nomask:.2f} ms")
     echo(f"reference: seed 001 reports 120 ms per frame (Java, Core 2 Quad 2.4 GHz); this run: {total:.1f} ms ({120.0 / total:.1f}x)")
+    # how fast this core is right now (shared machines): numpy's elementwise throughput
+    a, b = np.random.default_rng(0).random((2, 1_000_000))
+    t0 = time.perf_counter()
+    for _ in range(20):
+        np.maximum(a, b)
+    ns = (time.perf_counter() - t0) / 20 / 1e6 * 1e9
+    results["machine.ns_per_element"] = ns
+    echo(f"reference: numpy.maximum on 1e6 float64 takes {ns:.2f} ns per element on this core now "
+         "(an idle recent x86 core: about 0.5-1 ns); stage times scale with it")
     return results

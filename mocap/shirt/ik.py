@@ -351,7 +351,7 @@ class ShirtIK:
     # ------------------------------------------------------------------ solve
     def solve(self, q0: np.ndarray, cons: Constraints, priors: list[tuple[np.ndarray, np.ndarray]] = (),
               active: np.ndarray | None = None, iterations: int = 10, damping: float = 1e-3,
-              silhouettes: dict[int, Silhouette] | None = None) -> IKResult:
+              silhouettes: dict[int, Silhouette] | None = None, rel_tol: float = 1e-5) -> IKResult:
         """Minimise the energy from ``q0``.
 
         Parameters
@@ -364,6 +364,8 @@ class ShirtIK:
             Tangent components that may move (default all; the 6-DoF fit uses the root's).
         silhouettes : dict camera index -> Silhouette, optional
             Needed by absence constraints (``cons.absent``); without them those are ignored.
+        rel_tol : float
+            Stop when an iteration lowers the energy by less than this fraction.
         """
         nv = self.model.nv
         absent = np.asarray(cons.absent, bool) & np.isin(cons.camera, list((silhouettes or {}).keys()))
@@ -420,12 +422,13 @@ class ShirtIK:
                 q_new = self.kin.clamp(pin.integrate(self.model, q, dq))
                 r_new, _, cost_new, e_new = residuals(q_new, False)
                 if cost_new < cost:
+                    gain = (cost - cost_new) / max(cost, 1e-12)
                     q, cost = q_new, cost_new
                     lam = max(lam / 3, 1e-7)
                     improved = True
                     break
                 lam *= 8
-            if not improved or np.linalg.norm(step) < 1e-6:
+            if not improved or np.linalg.norm(step) < 1e-6 or gain < rel_tol:
                 break
             r, J, cost, e = residuals(q, True)
         e = e[present]

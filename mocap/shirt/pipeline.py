@@ -149,7 +149,7 @@ class ShirtPipelineParams:
     crop_margin: float = 1.2
     work_size: int = 144
     wb_size: int = 64
-    render_size: int = 72
+    render_size: int = 96
     gaussian_threshold: float = 3.0
     assisted_threshold: float = 5.0
     poor_fraction: float = 0.4
