@@ -7,7 +7,7 @@ import pytest
 
 from mocap.errors import MocapInputError
 from mocap.shirt.classify import assign_patches, classify_gaussian, classify_pose_assisted, patch_centroids
-from mocap.shirt.colour_model import (NOT_SHIRT, SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, labelled_colour_means,
+from mocap.shirt.colour_model import (NOT_SHIRT, ColourModel, ReferenceIlluminations, labelled_colour_means,
                                       solve_white_balance, train_colour_model, train_other_colours)
 
 
@@ -118,6 +118,11 @@ def test_patches_of_one_colour_are_split_by_the_rendered_pose_and_centroids_are_
     c, n = patch_centroids(pm, 3)
     np.testing.assert_allclose(c, [[1.5, 1.5], [5, 5], [7, 7.5]])
     assert n.tolist() == [4, 1, 6]
+    # a stray pixel of colour 0 far from both of its patches is gated out
+    colour[0, 9] = 0
+    assert assign_patches(colour, idx, pdist, np.array([0, 1, 0]))[0, 9] >= 0
+    assert assign_patches(colour, idx, pdist, np.array([0, 1, 0]), gate=3.0)[0, 9] == -1
+    assert (assign_patches(colour, idx, pdist, np.array([0, 1, 0]), gate=3.0)[1:3, 1:3] == 0).all()
 
 
 def test_other_colours_are_clustered_from_not_shirt_labels():

@@ -217,7 +217,8 @@ def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.nda
     return _result(linear_rgb.shape[:2], idx, best, score, threshold)
 
 
-def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:
+def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarray, patch_colour: np.ndarray,
+                   gate: float = np.inf) -> np.ndarray:
     """Split each colour's pixels between its patches: the patch nearest in the rendered pose.
 
     Parameters
@@ -229,11 +230,16 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
     patch_distance : (P, n) float
         Distance from those pixels to each rendered patch (``inf`` if not rendered).
     patch_colour : (P,) int
+    gate : float
+        Pixels farther than this (units of ``patch_distance``) from the nearest patch of
+        their colour are left out: a stray pixel of the colour elsewhere (an object of the
+        set, a misclassified edge) would drag a centroid.
 
     Returns
     -------
     (h, w) int16
-        Patch id per pixel, -1 where unclassified or where no patch of the colour is rendered.
+        Patch id per pixel, -1 where unclassified, where no patch of the colour is
+        rendered, or beyond the gate.
     """
     P = len(patch_colour)
     K = int(np.max(patch_colour)) + 1
@@ -252,7 +258,7 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
     d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
     j = d.argmin(axis=1)
     r = np.arange(len(sel))
-    good = np.isfinite(d[r, j])
+    good = d[r, j] <= gate
     out[idx[sel[good]]] = cand[r, j][good]
     return out.reshape(colour.shape)
 

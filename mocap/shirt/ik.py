@@ -28,7 +28,7 @@ needs a handful of 17 x 17 solves, far below scipy's per-call overhead.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2

@@ -128,6 +128,9 @@ class ShirtPipelineParams:
         Step 4 solves, each after splitting the colours into patches with the pose of
         the previous solve (the first uses the blended pose, as the paper; more passes
         are an addition for a database far from the pose).
+    patch_gate : float
+        Classified pixels farther than this fraction of the shirt's size from every
+        rendered patch of their colour do not count towards a centroid.
     absence_constraints : bool
         Add, for each patch the pose shows in a camera that does not see it at all, a
         term pulling it inside the seen shirt (where it can be hidden).  An addition to
@@ -163,6 +166,7 @@ class ShirtPipelineParams:
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
+    patch_gate: float = 0.2
     global_fit_std: float = 0.03
     baseline_damping_std: float = 3.0
     keep_classification: bool = False
@@ -601,7 +605,8 @@ class ShirtTracker:
         """Centroid constraints of one camera: classified colours split into patches by a rendered pose;
         absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer than min_patch_pixels)."""
         p = self.params
-        pm = assign_patches(colour, idx, pdist, self.model.patch_colour)
+        # pdist is in working pixels; the gate is a fraction of the shirt's size
+        pm = assign_patches(colour, idx, pdist, self.model.patch_colour, gate=p.patch_gate * o.tiny.side)
         cents, counts = patch_centroids(pm, self.model.n_patches)
         size_px = o.tiny.side * o.view.scale
         info = self.priors.centroid_sqrt_info(np.arange(self.model.n_patches), size_px)

@@ -34,7 +34,6 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import faiss
 import numpy as np
 from scipy.spatial.transform import Rotation
