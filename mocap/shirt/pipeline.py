@@ -96,6 +96,9 @@ class ShirtPipelineParams:
         ... and large enough to hold the previous pose's shirt, with this margin: the
         search's scale follows the most colourful part (the torso), the crop must hold
         the arms.
+    crop_growth : float
+        When classified shirt pixels touch the crop's border, the crop grows by this
+        factor and step 1 runs again (once).
     work_size : int
         Working resolution of the crop (pixels per side, at most).
     wb_size : int
@@ -150,6 +153,7 @@ class ShirtPipelineParams:
     crop_factor: float = 4.5
     crop_factor_first: float = 6.0
     crop_margin: float = 1.2
+    crop_growth: float = 1.5
     work_size: int = 144
     wb_size: int = 64
     render_size: int = 96
@@ -228,6 +232,25 @@ def _reduced(view: CropView, size: int) -> CropView:
     """The same square as ``view`` sampled with ``size`` pixels per side."""
     r = view.size / size
     return CropView(view.x0 + 0.5 * view.scale * (r - 1.0), view.y0 + 0.5 * view.scale * (r - 1.0), view.scale * r, size)
+
+
+def _without_thin_bits(colour: np.ndarray) -> np.ndarray:
+    """Classified map with structures thinner than 3 pixels removed (morphological opening of the classified mask).
+
+    The query of the pose database frames the shirt by its classified pixels; a rim of
+    mixed colours along the subject's outline or a few stray pixels on the trousers would
+    stretch that frame.  Forearms are several working pixels wide and survive.
+    """
+    mask = (colour >= 0).astype(np.uint8)
+    kept = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+    return np.where(kept, colour, -1).astype(colour.dtype)
+
+
+def _touches_border(colour: np.ndarray, band: int = 2, min_pixels: int = 4) -> bool:
+    """Whether at least ``min_pixels`` classified pixels lie within ``band`` pixels of the crop's edge."""
+    c = colour >= 0
+    edge = c[:band].sum() + c[-band:].sum() + c[band:-band, :band].sum() + c[band:-band, -band:].sum()
+    return bool(edge >= min_pixels)
 
 
 def _silhouette(colour: np.ndarray, view: CropView) -> Silhouette:
@@ -461,14 +484,20 @@ class ShirtTracker:
                 reach = np.max(np.abs(np.array([lo, hi]) - [loc.x, loc.y]))
                 side = max(side, 2.0 * reach * p.crop_margin)
             side = min(side, 2.0 * max(img.shape[:2]))
-            view = crop_view(loc.x, loc.y, side, p.work_size)
-            work = crop_image(img, view)
-            lin[ci] = SRGB_TO_LINEAR[work]
-            if masks[ci] is not None:
-                full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0])
-                fgs[ci] = crop_image(full.astype(np.uint8), view, cv2.INTER_NEAREST) > 0
-            dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
-            cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other)
+            for attempt in range(2):
+                view = crop_view(loc.x, loc.y, side, p.work_size)
+                work = crop_image(img, view)
+                lin[ci] = SRGB_TO_LINEAR[work]
+                if masks[ci] is not None:
+                    full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0])
+                    fgs[ci] = crop_image(full.astype(np.uint8), view, cv2.INTER_NEAREST) > 0
+                dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
+                cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other)
+                # shirt touching the crop's border: a limb reaches out of it (e.g. one the
+                # previous pose lost); look again over a larger square, once
+                if attempt or not _touches_border(cls.colour) or side >= 2.0 * max(img.shape[:2]):
+                    break
+                side = min(side * p.crop_growth, 2.0 * max(img.shape[:2]))
             if self._first_fraction[ci] is None:
                 self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
             poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]
@@ -488,7 +517,7 @@ class ShirtTracker:
             o = obs[ci]
             if o.step1 is None:
                 continue
-            o.tiny = tiny_id_map(o.step1.colour, K)
+            o.tiny = tiny_id_map(_without_thin_bits(o.step1.colour), K)
             if o.tiny is None:
                 continue
             o.neighbours = self.db.search(o.tiny.ids, p.neighbours)
