@@ -33,6 +33,10 @@ from simbench.render.gl_context import GLContext
 from OpenGL import GL as gl  # noqa: E402  (after the platform is configured)
 
 MAX_LIGHTS = 8
+_SCRATCH_UNIT = 7  # texture unit for creating textures without disturbing unit 0 (the board texture)
+_ALL_COLOR = (gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2)
+_ZEROS_F = np.zeros(4, np.float32)
+_ZEROS_I = np.zeros(4, np.int32)
 
 # Lighting is evaluated per vertex (Gouraud): on llvmpipe the fragment stage dominates,
 # and per-fragment lighting of a 640x480 view costs ~4x the whole rest of the frame.
@@ -155,6 +159,19 @@ class GeometryBuffers:
     uv: np.ndarray | None = None
 
 
+@dataclass
+class _Target:
+    """A render target: framebuffer, radiance texture, id / camera-z / depth renderbuffers."""
+
+    fbo: int
+    radiance: int
+    ids: int
+    zcam: int
+    depth: int
+    width: int
+    height: int
+
+
 def _compile(src: str, kind) -> int:
     sh = gl.glCreateShader(kind)
     gl.glShaderSource(sh, src)
@@ -250,25 +267,36 @@ class Rasterizer:
             for name in ("u_world_to_cam", "u_proj", "u_n_lights", "u_light_kind", "u_light_vec",
                          "u_light_rgb", "u_ambient", "u_cam_pos", "u_ring_rgb", "u_specular")
         }
-        self._fbos: dict[tuple[int, int], int] = {}
+        self._fbos: dict[tuple[int, int], _Target] = {}
         self._static: _Mesh | None = None
         self._dynamic: _Mesh | None = None
-        self._static_cache: dict[tuple, tuple[int, list]] = {}
+        self._static_cache: dict[tuple, _Target] = {}
 
-    def _framebuffer(self, width: int, height: int) -> int:
+    def _framebuffer(self, width: int, height: int) -> "_Target":
         """The working framebuffer of this size (made once)."""
         key = (width, height)
         if key not in self._fbos:
-            self._fbos[key] = self._new_framebuffer(width, height)[0]
+            self._fbos[key] = self._new_framebuffer(width, height)
         return self._fbos[key]
 
-    def _new_framebuffer(self, width: int, height: int) -> tuple[int, list]:
-        """Framebuffer with radiance / id / depth attachments: (fbo, renderbuffers)."""
+    def _new_framebuffer(self, width: int, height: int) -> "_Target":
+        """Framebuffer with radiance (a texture, so that the GL sensor pass can sample it),
+        id, camera-depth and depth-buffer attachments."""
         fbo = gl.glGenFramebuffers(1)
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, fbo)
-        rbs = gl.glGenRenderbuffers(4)
-        formats = (gl.GL_RGBA32F, gl.GL_R32I, gl.GL_R32F, gl.GL_DEPTH_COMPONENT24)
-        attach = (gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2, gl.GL_DEPTH_ATTACHMENT)
+        tex = gl.glGenTextures(1)
+        # A spare texture unit: unit 0 holds the board texture the draw samples.
+        gl.glActiveTexture(gl.GL_TEXTURE0 + _SCRATCH_UNIT)
+        gl.glBindTexture(gl.GL_TEXTURE_2D, tex)
+        gl.glTexStorage2D(gl.GL_TEXTURE_2D, 1, gl.GL_RGBA32F, width, height)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MIN_FILTER, gl.GL_NEAREST)
+        gl.glTexParameteri(gl.GL_TEXTURE_2D, gl.GL_TEXTURE_MAG_FILTER, gl.GL_NEAREST)
+        gl.glBindTexture(gl.GL_TEXTURE_2D, 0)
+        gl.glActiveTexture(gl.GL_TEXTURE0)
+        gl.glFramebufferTexture2D(gl.GL_FRAMEBUFFER, gl.GL_COLOR_ATTACHMENT0, gl.GL_TEXTURE_2D, tex, 0)
+        rbs = [int(r) for r in gl.glGenRenderbuffers(3)]
+        formats = (gl.GL_R32I, gl.GL_R32F, gl.GL_DEPTH_COMPONENT24)
+        attach = (gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2, gl.GL_DEPTH_ATTACHMENT)
         for rb, fmt, att in zip(rbs, formats, attach):
             gl.glBindRenderbuffer(gl.GL_RENDERBUFFER, rb)
             gl.glRenderbufferStorage(gl.GL_RENDERBUFFER, fmt, width, height)
@@ -276,15 +304,28 @@ class Rasterizer:
         status = gl.glCheckFramebufferStatus(gl.GL_FRAMEBUFFER)
         if status != gl.GL_FRAMEBUFFER_COMPLETE:
             raise RuntimeError(f"incomplete framebuffer (status {status:#x})")
-        gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
-        return fbo, list(rbs)
+        gl.glDrawBuffers(3, _ALL_COLOR)
+        return _Target(int(fbo), int(tex), rbs[0], rbs[1], rbs[2], width, height)
+
+    def _delete_target(self, target: "_Target") -> None:
+        gl.glDeleteFramebuffers(1, [target.fbo])
+        gl.glDeleteTextures(1, [target.radiance])
+        gl.glDeleteRenderbuffers(3, [target.ids, target.zcam, target.depth])
+
+    def radiance_texture(self, width: int, height: int) -> int:
+        """GL name of the ``RGBA32F`` radiance texture that ``render`` draws at this size.
+
+        Row 0 of the texture is image row 0 (the top row). Its content is that of the
+        last ``render`` call at this size.
+        """
+        return self._framebuffer(width, height).radiance
 
     # ---------------------------------------------------------------- geometry
     def set_static(self, buf: GeometryBuffers) -> None:
         self.context.make_current()
         self._static = _Mesh(buf, dynamic=False)
-        for fbo, _ in self._static_cache.values():
-            gl.glDeleteFramebuffers(1, [fbo])
+        for target in self._static_cache.values():
+            self._delete_target(target)
         self._static_cache.clear()
 
     def set_dynamic(self, buf: GeometryBuffers) -> None:
@@ -320,17 +361,26 @@ class Rasterizer:
         self._dynamic.update(positions, normals)
 
     # ---------------------------------------------------------------- render
-    def _draw(self, fbo: int, width: int, height: int, meshes, clear: bool, uniforms: tuple) -> None:
+    def _draw(self, fbo: int, width: int, height: int, meshes, clear: bool, uniforms: tuple,
+              attachments: tuple[bool, bool, bool] = (True, True, True)) -> None:
+        """Draw ``meshes`` into the colour attachments flagged in ``attachments``
+        (radiance, ids, camera depth); the others are left as they are."""
         gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, fbo)
+        # Only the attachments that will be read: llvmpipe then skips the others' writes.
+        gl.glDrawBuffers(3, [a if on else gl.GL_NONE for a, on in zip(_ALL_COLOR, attachments)])
         gl.glViewport(0, 0, width, height)
         gl.glEnable(gl.GL_DEPTH_TEST)
         gl.glDepthFunc(gl.GL_LESS)
+        gl.glDisable(gl.GL_BLEND)
         gl.glDisable(gl.GL_MULTISAMPLE)
         gl.glDisable(gl.GL_CULL_FACE)
         if clear:
-            gl.glClearBufferfv(gl.GL_COLOR, 0, np.zeros(4, np.float32))
-            gl.glClearBufferiv(gl.GL_COLOR, 1, np.zeros(4, np.int32))
-            gl.glClearBufferfv(gl.GL_COLOR, 2, np.zeros(4, np.float32))
+            if attachments[0]:
+                gl.glClearBufferfv(gl.GL_COLOR, 0, _ZEROS_F)
+            if attachments[1]:
+                gl.glClearBufferiv(gl.GL_COLOR, 1, _ZEROS_I)
+            if attachments[2]:
+                gl.glClearBufferfv(gl.GL_COLOR, 2, _ZEROS_F)
             gl.glClear(gl.GL_DEPTH_BUFFER_BIT)
         W2C, P, kinds, vecs, rgbs, n, ambient, cam_pos, ring, specular = uniforms
         gl.glUseProgram(self._prog)
@@ -349,18 +399,20 @@ class Rasterizer:
             if mesh is not None:
                 mesh.draw()
 
-    def _copy_framebuffer(self, src: int, dst: int, width: int, height: int) -> None:
-        """Copy all three colour attachments and depth (the cached static set)."""
-        gl.glBindFramebuffer(gl.GL_READ_FRAMEBUFFER, src)
-        gl.glBindFramebuffer(gl.GL_DRAW_FRAMEBUFFER, dst)
-        for i in range(3):
-            att = gl.GL_COLOR_ATTACHMENT0 + i
-            gl.glReadBuffer(att)
-            gl.glDrawBuffers(1, [att])
-            gl.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, gl.GL_COLOR_BUFFER_BIT, gl.GL_NEAREST)
-        gl.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, gl.GL_DEPTH_BUFFER_BIT, gl.GL_NEAREST)
-        gl.glDrawBuffers(3, [gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2])
-        gl.glBindFramebuffer(gl.GL_FRAMEBUFFER, dst)
+    def _copy_framebuffer(self, src: "_Target", dst: "_Target", attachments: tuple[bool, bool, bool]) -> None:
+        """Copy the flagged colour attachments and the depth buffer (the cached static set).
+
+        ``glCopyImageSubData`` is a plain memory copy on llvmpipe; a blit per attachment
+        draws a textured quad each and cost ~4x as much here.
+        """
+        w, h = src.width, src.height
+        pairs = [(src.radiance, dst.radiance, gl.GL_TEXTURE_2D), (src.ids, dst.ids, gl.GL_RENDERBUFFER),
+                 (src.zcam, dst.zcam, gl.GL_RENDERBUFFER)]
+        for (a, b, target), on in zip(pairs, attachments):
+            if on:
+                gl.glCopyImageSubData(a, target, 0, 0, 0, 0, b, target, 0, 0, 0, 0, w, h, 1)
+        gl.glCopyImageSubData(src.depth, gl.GL_RENDERBUFFER, 0, 0, 0, 0, dst.depth, gl.GL_RENDERBUFFER, 0, 0, 0, 0,
+                              w, h, 1)
 
     def render(
         self,
@@ -383,7 +435,10 @@ class Rasterizer:
         Returns a dict with the requested ``outputs``: ``radiance`` (H, W, 3) float32
         linear (``radiance_red`` gives only its first channel, (H, W, 1), as
         ``radiance``), ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
-        (0 where nothing was drawn).
+        (0 where nothing was drawn), ``radiance_texture`` the GL name (int) of the
+        ``RGBA32F`` radiance texture, drawn but not read back (for the GL sensor pass,
+        :mod:`simbench.render.gl_sensor`). Only the requested images are drawn: the
+        others of this size hold stale content afterwards.
 
         With ``cache_static`` the static set (floor, walls, clutter) is drawn once per
         view and light state and copied in before the moving geometry is drawn: it
@@ -408,23 +463,27 @@ class Rasterizer:
         uniforms = (W2C.astype(np.float32), P.astype(np.float32), kinds, vecs, rgbs, len(lights),
                     np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
                     np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
-        fbo = self._framebuffer(width, height)
+        target = self._framebuffer(width, height)
+        want_rad = any(o in outputs for o in ("radiance", "radiance_red", "radiance_texture"))
+        attachments = (want_rad, "ids" in outputs, "depth" in outputs)
         if cache_static and self._static is not None:
             key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
             cached = self._static_cache.get(key)
             if cached is None:
                 if len(self._static_cache) >= 16:  # bounded: drop the oldest view/light state
                     old_key = next(iter(self._static_cache))
-                    gl.glDeleteFramebuffers(1, [self._static_cache.pop(old_key)[0]])
+                    self._delete_target(self._static_cache.pop(old_key))
                 cached = self._new_framebuffer(width, height)
-                self._draw(cached[0], width, height, (self._static,), True, uniforms)
+                self._draw(cached.fbo, width, height, (self._static,), True, uniforms)
                 self._static_cache[key] = cached
-            self._copy_framebuffer(cached[0], fbo, width, height)
-            self._draw(fbo, width, height, (self._dynamic,), False, uniforms)
+            self._copy_framebuffer(cached, target, attachments)
+            self._draw(target.fbo, width, height, (self._dynamic,), False, uniforms, attachments)
         else:
-            self._draw(fbo, width, height, (self._static, self._dynamic), True, uniforms)
-        out: dict[str, np.ndarray] = {}
+            self._draw(target.fbo, width, height, (self._static, self._dynamic), True, uniforms, attachments)
+        out: dict = {}
         H, W = height, width
+        if "radiance_texture" in outputs:
+            out["radiance_texture"] = target.radiance
         if "radiance" in outputs:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             # RGBA then drop alpha: Mesa converts RGBA -> RGB on read-back at 3x the cost.
