@@ -24,6 +24,7 @@ Conventions
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 
 import numpy as np
@@ -181,15 +182,53 @@ def _compile(src: str, kind) -> int:
     return sh
 
 
+def closed_outward_faces(faces: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Which faces ``(T,)`` bool belong to a closed, consistently oriented, outward-wound component.
+
+    A component is closed and consistently oriented when each of its directed edges
+    ``(a, b)`` occurs once and its reverse ``(b, a)`` occurs too; outward when its signed
+    volume (counter-clockwise faces seen from outside) is positive. The back faces of
+    such a component are always hidden behind its front faces (for a camera outside it),
+    so culling them changes no pixel.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    P = np.asarray(positions, np.float64)
+    nv = len(P)
+    if len(F) == 0:
+        return np.zeros(0, bool)
+    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    n_comp, label = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nv, nv)),
+                                         directed=False)
+    key = e[:, 0] * nv + e[:, 1]
+    uniq, count = np.unique(key, return_counts=True)
+    bad_edge = ~np.isin(e[:, 1] * nv + e[:, 0], key) | (count[np.searchsorted(uniq, key)] > 1)
+    open_comp = np.zeros(n_comp, bool)
+    open_comp[label[e[bad_edge, 0]]] = True
+    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
+    volume = np.bincount(label[F[:, 0]], weights=np.einsum("ij,ij->i", a, np.cross(b, c)), minlength=n_comp)
+    good = ~open_comp & (volume > 0)
+    return good[label[F[:, 0]]]
+
+
 class _Mesh:
     def __init__(self, buf: GeometryBuffers, dynamic: bool) -> None:
         self.n = len(buf.positions)
         self.n_idx = int(np.asarray(buf.faces).size)
+        # Closed outward meshes (the body, markers, props) first, drawn with back faces
+        # culled: llvmpipe's cost for the moving body is per triangle (setup and binning),
+        # and half of a closed mesh's triangles face away. Open surfaces stay two-sided.
+        faces = np.asarray(buf.faces, np.uint32).reshape(-1, 3)
+        closed = closed_outward_faces(faces, buf.positions)
+        faces = np.concatenate([faces[closed], faces[~closed]])
+        self.n_cull_idx = 3 * int(closed.sum())
         self.vao = gl.glGenVertexArrays(1)
         gl.glBindVertexArray(self.vao)
         self.ebo = gl.glGenBuffers(1)
         gl.glBindBuffer(gl.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
-        gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, np.ascontiguousarray(buf.faces, np.uint32).ravel(), gl.GL_STATIC_DRAW)
+        gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, np.ascontiguousarray(faces).ravel(), gl.GL_STATIC_DRAW)
         usage = gl.GL_DYNAMIC_DRAW if dynamic else gl.GL_STATIC_DRAW
         self.vbo_pos = gl.glGenBuffers(1)
         self.vbo_nrm = gl.glGenBuffers(1)
@@ -226,9 +265,18 @@ class _Mesh:
         gl.glBufferSubData(gl.GL_ARRAY_BUFFER, 0, np.ascontiguousarray(normals, np.float32))
 
     def draw(self) -> None:
-        if self.n_idx:
-            gl.glBindVertexArray(self.vao)
-            gl.glDrawElements(gl.GL_TRIANGLES, self.n_idx, gl.GL_UNSIGNED_INT, None)
+        gl.glBindVertexArray(self.vao)
+        if self.n_cull_idx:
+            # Counter-clockwise seen from outside in the world becomes clockwise in GL
+            # window coordinates: the projection keeps OpenCV's y-down rows (see projection_from_K).
+            gl.glEnable(gl.GL_CULL_FACE)
+            gl.glFrontFace(gl.GL_CW)
+            gl.glCullFace(gl.GL_BACK)
+            gl.glDrawElements(gl.GL_TRIANGLES, self.n_cull_idx, gl.GL_UNSIGNED_INT, None)
+            gl.glDisable(gl.GL_CULL_FACE)
+        if self.n_idx > self.n_cull_idx:
+            gl.glDrawElements(gl.GL_TRIANGLES, self.n_idx - self.n_cull_idx, gl.GL_UNSIGNED_INT,
+                              ctypes.c_void_p(4 * self.n_cull_idx))
 
 
 def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar: float) -> np.ndarray:
