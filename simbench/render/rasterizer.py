@@ -483,7 +483,8 @@ class Rasterizer:
         Returns a dict with the requested ``outputs``: ``radiance`` (H, W, 3) float32
         linear (``radiance_red`` gives only its first channel, (H, W, 1), as
         ``radiance``), ``ids`` (H, W) int32, ``depth`` (H, W) float32 camera z in metres
-        (0 where nothing was drawn), ``radiance_texture`` the GL name (int) of the
+        (0 where nothing was drawn), ``radiance_rgba`` the read-back (H, W, 4) float32
+        as it is (alpha 1; saves a copy when the caller drops it), ``radiance_texture`` the GL name (int) of the
         ``RGBA32F`` radiance texture, drawn but not read back (for the GL sensor pass,
         :mod:`simbench.render.gl_sensor`). Only the requested images are drawn: the
         others of this size hold stale content afterwards.
@@ -512,7 +513,7 @@ class Rasterizer:
                     np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
                     np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
         target = self._framebuffer(width, height)
-        want_rad = any(o in outputs for o in ("radiance", "radiance_red", "radiance_texture"))
+        want_rad = any(o in outputs for o in ("radiance", "radiance_rgba", "radiance_red", "radiance_texture"))
         attachments = (want_rad, "ids" in outputs, "depth" in outputs)
         if cache_static and self._static is not None:
             key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
@@ -532,11 +533,15 @@ class Rasterizer:
         H, W = height, width
         if "radiance_texture" in outputs:
             out["radiance_texture"] = target.radiance
-        if "radiance" in outputs:
+        if "radiance" in outputs or "radiance_rgba" in outputs:
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             # RGBA then drop alpha: Mesa converts RGBA -> RGB on read-back at 3x the cost.
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGBA, gl.GL_FLOAT)
-            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 4)[..., :3]
+            rgba = np.frombuffer(buf, np.float32).reshape(H, W, 4)
+            if "radiance" in outputs:
+                out["radiance"] = rgba[..., :3]
+            if "radiance_rgba" in outputs:
+                out["radiance_rgba"] = rgba
         if "radiance_red" in outputs:  # monochrome (IR) sensors: one channel is enough
             gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
