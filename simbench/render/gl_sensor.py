@@ -359,6 +359,15 @@ class GLSensorPipeline:
         gl.glBindVertexArray(self._vao)
         gl.glDrawArrays(gl.GL_TRIANGLES, 0, 3)
 
+    def upload(self, radiance: np.ndarray) -> int:
+        """A new ``RGBA32F`` texture holding ``radiance`` ``(H, W, 4)`` float32 (row 0 = top),
+        as :meth:`finish` takes it (tests and offline use; the renderer passes its own)."""
+        self.raster.context.make_current()
+        rad = np.ascontiguousarray(radiance, np.float32)
+        if rad.ndim != 3 or rad.shape[2] != 4:
+            raise ValueError(f"radiance must be (H, W, 4), got {rad.shape}")
+        return self._texture(gl.GL_RGBA32F, rad.shape[1], rad.shape[0], gl.GL_RGBA, gl.GL_FLOAT, rad)
+
     # ---------------------------------------------------------------- shutter
     def accumulate(self, radiance_tex: int, width: int, height: int, first: bool) -> int:
         """Add one sub-frame's radiance texture into the shutter accumulator; returns its texture.

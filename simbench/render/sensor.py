@@ -122,7 +122,7 @@ class Sensor:
         read-back; all but red in ``ir`` mode), the exposure scale (and 1 / number of
         sub-frames) is folded into the blur kernel, the kernel's negligible outer taps
         are dropped (:func:`gaussian_half_kernel`), the full-well clip is folded into
-        the gamma-table index clip when gain >= 1, noise indices come from the
+        the gamma-table index clip when gain x white balance >= 1, noise indices come from the
         generator's raw 64-bit output, element-wise steps with a per-channel operand
         run in OpenCV, and work arrays are reused. Noise-free output
         equals the reference's within one grey level (float rounding at table index
@@ -181,7 +181,8 @@ class Sensor:
             else:  # grey world sees the clipped linear frame, subsampled as the reference does
                 sub = np.clip(e.reshape(-1, 3)[::7], np.float32(0), np.float32(cfg.full_well_e))
                 k_idx = (wb.update_means(sub.mean(axis=0)) * k_idx).astype(np.float32)
-        if cfg.gain < 1.0:  # else full well maps beyond the table's top, which the clip below takes care of
+        if np.any(np.float32(cfg.full_well_e) * k_idx < top):
+            # Else the full well maps at or beyond the table's top, and the index clip below does its work.
             cv2.min(e, (float(cfg.full_well_e),) * 4, dst=e)  # a bare number would be (v, 0, 0, 0)
         # Table index: one saturating multiply to uint16 (negative -> 0) and a clip at
         # the top, where numpy's per-channel broadcast multiply, add, clip and cast take
