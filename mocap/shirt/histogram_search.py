@@ -127,30 +127,52 @@ def chromaticity_bins(image: np.ndarray, params: HistogramSearchParams, mask: np
 
 
 def _cells(image: np.ndarray, params: HistogramSearchParams, foreground: np.ndarray | None):
-    """Half-size bins, cell histogram counts ``(ny, nx, nb)`` and the foreground fraction per cell."""
+    """Cell histogram counts over the cells holding foreground, and the foreground cells.
+
+    Returns
+    -------
+    counts : (by, bx, nb) float32
+        Bin counts of the cells ``r0..r0+by-1`` x ``c0..c0+bx-1`` (all cells without a
+        foreground mask; otherwise the bounding box of the cells holding foreground
+        pixels, since no other pixel is counted: only that part of the frame is binned).
+    fg_cells : (ny, nx) bool or None
+        Cells at least half foreground (window centres).
+    c : int
+        Cell side in half-size pixels.
+    origin : (int, int)
+        ``(r0, c0)``.
+    grid : (int, int)
+        ``(ny, nx)``, the whole frame's cells.
+    """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         raise MocapInputError(f"histogram search: expected an (H, W, 3) uint8 RGB image, got {img.shape} {img.dtype}")
     H, W = img.shape[:2]
-    small = cv2.resize(img, (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA)
-    fg_small = None
-    if foreground is not None:
-        fg_small = cv2.resize(np.asarray(foreground, np.uint8), (W // _REDUCE, H // _REDUCE), interpolation=cv2.INTER_AREA) > 0
     c = params.stride_px // _REDUCE
-    h, w = small.shape[:2]
+    h, w = H // _REDUCE, W // _REDUCE
     ny, nx = h // c, w // c
-    small = small[: ny * c, : nx * c]
-    bins, nb = chromaticity_bins(small, params, None if fg_small is None else fg_small[: ny * c, : nx * c])
-    cy = (np.arange(ny * c) // c)[:, None]
-    cx = (np.arange(nx * c) // c)[None, :]
-    cell = (cy * nx + cx)
+    r0, c0, r1, c1 = 0, 0, ny, nx
+    fg_small = fg_cells = None
+    if foreground is not None:
+        fg_small = cv2.resize(np.asarray(foreground, np.uint8), (w, h), interpolation=cv2.INTER_AREA)[: ny * c, : nx * c] > 0
+        fg_cells = fg_small.reshape(ny, c, nx, c).mean(axis=(1, 3)) >= 0.5
+        rows = np.flatnonzero(fg_small.any(axis=1))
+        cols = np.flatnonzero(fg_small.any(axis=0))
+        if rows.size == 0:
+            return np.zeros((0, 0, _bin_table(params.bins_per_axis)[1]), np.float32), fg_cells, c, (0, 0), (ny, nx)
+        r0, r1 = rows[0] // c, rows[-1] // c + 1
+        c0, c1 = cols[0] // c, cols[-1] // c + 1
+    # halving a block aligned on even pixels gives the same pixels as halving the frame
+    f = c * _REDUCE
+    small = cv2.resize(img[r0 * f: r1 * f, c0 * f: c1 * f], ((c1 - c0) * c, (r1 - r0) * c), interpolation=cv2.INTER_AREA)
+    by, bx = r1 - r0, c1 - c0
+    bins, nb = chromaticity_bins(small, params, None if fg_small is None else fg_small[r0 * c: r1 * c, c0 * c: c1 * c])
+    cy = (np.arange(by * c) // c)[:, None]
+    cx = (np.arange(bx * c) // c)[None, :]
+    cell = (cy * bx + cx)
     ok = bins >= 0
-    counts = np.bincount((cell[ok] * nb + bins[ok]).ravel(), minlength=ny * nx * nb).reshape(ny, nx, nb).astype(np.float32)
-    fg_cells = None
-    if fg_small is not None:
-        f = fg_small[: ny * c, : nx * c].reshape(ny, c, nx, c).mean(axis=(1, 3))
-        fg_cells = f >= 0.5
-    return counts, fg_cells, c
+    counts = np.bincount((cell[ok] * nb + bins[ok]).ravel(), minlength=by * bx * nb).reshape(by, bx, nb).astype(np.float32)
+    return counts, fg_cells, c, (int(r0), int(c0)), (ny, nx)
 
 
 def _weighted_location(centres: list[np.ndarray], sizes: list[np.ndarray], us: list[np.ndarray],
@@ -186,10 +208,13 @@ def search_shirt(image: np.ndarray, params: HistogramSearchParams = HistogramSea
     ShirtLocation or None
         None when no window has any colour (e.g. an empty or black frame).
     """
-    counts, fg_cells, c = _cells(image, params, foreground)
-    ny, nx, nb = counts.shape
-    integral = np.zeros((ny + 1, nx + 1, nb), np.float32)
-    np.cumsum(np.cumsum(counts, axis=0), axis=1, out=integral[1:, 1:])
+    counts, fg_cells, c, (r0, c0), (ny, nx) = _cells(image, params, foreground)
+    by, bx, nb = counts.shape
+    if by == 0:
+        return None
+    # cv2.integral sums all bins at once, several times faster than two numpy cumsums over
+    # non-contiguous axes; counts stay below 2**24, exact in float32
+    integral = cv2.integral(counts, sdepth=cv2.CV_32F)
     cell_px = c * _REDUCE
     centres, sizes, us = [], [], []
     for s_px in scales_px(params, np.asarray(image).shape[0]):
@@ -197,7 +222,7 @@ def search_shirt(image: np.ndarray, params: HistogramSearchParams = HistogramSea
         if m > ny or m > nx:
             continue
         area = float((m * c) ** 2)
-        if fg_cells is None:
+        if fg_cells is None:  # the counts cover the whole frame
             S = integral[m:, m:] - integral[:-m, m:] - integral[m:, :-m] + integral[:-m, :-m]
             np.minimum(S, params.tau * area, out=S)
             u = S.sum(axis=2).ravel() / area
@@ -208,7 +233,10 @@ def search_shirt(image: np.ndarray, params: HistogramSearchParams = HistogramSea
             iy, ix = np.nonzero(sel)
             if iy.size == 0:
                 continue
-            S = integral[iy + m, ix + m] - integral[iy, ix + m] - integral[iy + m, ix] + integral[iy, ix]
+            # the window's part inside the counted block (nothing is counted outside it)
+            ya, yb = np.clip(iy - r0, 0, by), np.clip(iy + m - r0, 0, by)
+            xa, xb = np.clip(ix - c0, 0, bx), np.clip(ix + m - c0, 0, bx)
+            S = integral[yb, xb] - integral[ya, xb] - integral[yb, xa] + integral[ya, xa]
             np.minimum(S, params.tau * area, out=S)
             u = S.sum(axis=1) / area
         # window (iy, ix) covers cells iy..iy+m-1: centre in original pixels

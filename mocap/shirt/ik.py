@@ -261,6 +261,23 @@ class IKResult:
 
 
 @dataclass
+class _Layout:
+    """Per-solve constants of :meth:`ShirtIK.centroids` (A anchors, n constraints)."""
+
+    frames: list  # Pinocchio frame of each body used
+    inv: np.ndarray  # (A,) index into ``frames``
+    points: np.ndarray  # (A, 3) anchor in its body's frame, m
+    Rc: np.ndarray  # (A, 3, 3) world -> camera of the anchor's camera
+    tc: np.ndarray  # (A, 3)
+    fx: np.ndarray  # (A,) px
+    fy: np.ndarray
+    skew: np.ndarray
+    c: np.ndarray  # (A, 2) principal point, px
+    S: np.ndarray  # (n, A) anchor weights of each constraint
+    distorted: list  # (camera, anchor indices) of cameras with lens distortion
+
+
+@dataclass
 class _Prior:
     q_ref: np.ndarray
     inv_std: np.ndarray  # (nv,)
@@ -289,64 +306,79 @@ class ShirtIK:
         self._pinhole = [bool(np.all(c.dist == 0)) for c in self.cameras]
 
     # ------------------------------------------------------------------ model
-    def _anchors_world(self, q: np.ndarray, cons: Constraints, jacobians: bool):
-        pin.forwardKinematics(self.model, self.data, q)
-        if jacobians:
-            pin.computeJointJacobians(self.model, self.data, q)
-        pin.updateFramePlacements(self.model, self.data)
+    def _layout(self, cons: Constraints) -> "_Layout":
+        """What a solve evaluates again and again for the same constraints, prepared once."""
         used, inv = np.unique(cons.anchor_body, return_inverse=True)
-        R = np.empty((len(used), 3, 3))
-        p = np.empty((len(used), 3))
-        Jb = np.empty((len(used), 6, self.model.nv)) if jacobians else None
-        for i, b in enumerate(used):
-            f = self.frames[b]
-            M = self.data.oMf[f]
+        cam = cons.camera[cons.anchor_of]
+        A, n = len(cam), len(cons)
+        Rc = np.stack([c.R for c in self.cameras])[cam] if A else np.zeros((0, 3, 3))
+        tc = np.stack([np.asarray(c.t, float) for c in self.cameras])[cam] if A else np.zeros((0, 3))
+        K = np.stack([c.K for c in self.cameras])[cam] if A else np.zeros((0, 3, 3))
+        # anchor -> constraint weights: one matrix product replaces np.add.at
+        S = np.zeros((n, A))
+        S[cons.anchor_of, np.arange(A)] = cons.anchor_weight
+        distorted = [(ci, np.flatnonzero(cam == ci)) for ci in range(len(self.cameras)) if not self._pinhole[ci]]
+        distorted = [(ci, sel) for ci, sel in distorted if sel.size]
+        return _Layout([self.frames[b] for b in used], inv, np.asarray(cons.anchor_point_m, float), Rc, tc, K[:, 0, 0], K[:, 1, 1],
+                       K[:, 0, 1], K[:, :2, 2], S, distorted)
+
+    def _anchors_world(self, q: np.ndarray, lay: "_Layout", jacobians: bool):
+        """World anchors ``(A, 3)`` and their Jacobians ``(A, 3, nv)`` (point velocity, LOCAL_WORLD_ALIGNED)."""
+        if jacobians:
+            pin.computeJointJacobians(self.model, self.data, q)  # also runs the forward kinematics
+        else:
+            pin.forwardKinematics(self.model, self.data, q)
+        pin.updateFramePlacements(self.model, self.data)
+        nb = len(lay.frames)
+        R = np.empty((nb, 3, 3))
+        p = np.empty((nb, 3))
+        Jb = np.empty((nb, 6, self.model.nv)) if jacobians else None
+        oMf = self.data.oMf
+        for i, f in enumerate(lay.frames):
+            M = oMf[f]
             R[i], p[i] = M.rotation, M.translation
             if jacobians:
                 Jb[i] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        r = np.einsum("aij,aj->ai", R[inv], cons.anchor_point_m)
-        X = r + p[inv]
+        r = np.einsum("aij,aj->ai", R[lay.inv], lay.points)
+        X = r + p[lay.inv]
         if not jacobians:
             return X, None
         # v_point = v_origin + w x r = Jl - [r]x Ja
-        Jl, Ja = Jb[inv, :3], Jb[inv, 3:]
-        JX = Jl.copy()
+        J = Jb[lay.inv]
+        JX = J[:, :3].copy()
+        Ja = J[:, 3:]
         JX[:, 0] -= r[:, 1, None] * Ja[:, 2] - r[:, 2, None] * Ja[:, 1]
         JX[:, 1] -= r[:, 2, None] * Ja[:, 0] - r[:, 0, None] * Ja[:, 2]
         JX[:, 2] -= r[:, 0, None] * Ja[:, 1] - r[:, 1, None] * Ja[:, 0]
         return X, JX
 
-    def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False):
+    def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False, layout: "_Layout | None" = None):
         """Model centroids ``(n, 2)`` px of the constraints at ``q`` (and their Jacobians ``(n, 2, nv)``)."""
-        X, JX = self._anchors_world(q, cons, jacobians)
-        n = len(cons)
-        out = np.zeros((n, 2))
-        Jout = np.zeros((n, 2, self.model.nv)) if jacobians else None
-        cam_of_anchor = cons.camera[cons.anchor_of]
-        for ci, cam in enumerate(self.cameras):
-            sel = cam_of_anchor == ci
-            if not sel.any():
-                continue
-            Xc = X[sel] @ cam.R.T + cam.t
-            z = np.maximum(Xc[:, 2], 1e-3)
-            if self._pinhole[ci]:
-                uv = Xc[:, :2] / z[:, None] * np.array([cam.K[0, 0], cam.K[1, 1]]) + cam.K[:2, 2]
-                uv[:, 0] += cam.K[0, 1] * Xc[:, 1] / z
-            else:
-                uv = cv2.projectPoints(X[sel], cam.rvec, cam.t, cam.K, cam.dist)[0].reshape(-1, 2)
-            w = cons.anchor_weight[sel]
-            idx = cons.anchor_of[sel]
-            np.add.at(out, idx, w[:, None] * uv)
-            if jacobians:
-                fx, fy = cam.K[0, 0], cam.K[1, 1]
-                Jp = np.zeros((len(z), 2, 3))
-                Jp[:, 0, 0] = fx / z
-                Jp[:, 0, 2] = -fx * Xc[:, 0] / z**2
-                Jp[:, 1, 1] = fy / z
-                Jp[:, 1, 2] = -fy * Xc[:, 1] / z**2
-                Ja = Jp @ cam.R @ JX[sel]  # (a, 2, nv)
-                np.add.at(Jout, idx, w[:, None, None] * Ja)
-        return out, Jout
+        lay = self._layout(cons) if layout is None else layout
+        n, nv = len(cons), self.model.nv
+        if not len(lay.inv):
+            return np.zeros((n, 2)), (np.zeros((n, 2, nv)) if jacobians else None)
+        X, JX = self._anchors_world(q, lay, jacobians)
+        Xc = np.einsum("aij,aj->ai", lay.Rc, X) + lay.tc
+        z = np.maximum(Xc[:, 2], 1e-3)
+        x, y = Xc[:, 0] / z, Xc[:, 1] / z
+        uv = np.empty((len(z), 2))
+        uv[:, 0] = lay.fx * x + lay.skew * y + lay.c[:, 0]
+        uv[:, 1] = lay.fy * y + lay.c[:, 1]
+        for ci, sel in lay.distorted:
+            cam = self.cameras[ci]
+            uv[sel] = cv2.projectPoints(X[sel], cam.rvec, cam.t, cam.K, cam.dist)[0].reshape(-1, 2)
+        out = lay.S @ uv
+        if not jacobians:
+            return out, None
+        # pinhole derivative (the lens distortion's is left out: it is close to identity)
+        Jp = np.zeros((len(z), 2, 3))
+        Jp[:, 0, 0] = lay.fx / z
+        Jp[:, 0, 2] = -lay.fx * x / z
+        Jp[:, 1, 1] = lay.fy / z
+        Jp[:, 1, 2] = -lay.fy * y / z
+        Ja = np.matmul(np.matmul(Jp, lay.Rc), JX)  # (A, 2, nv)
+        return out, (lay.S @ Ja.reshape(len(z), -1)).reshape(n, 2, nv)
 
     # ------------------------------------------------------------------ solve
     def solve(self, q0: np.ndarray, cons: Constraints, priors: list[tuple[np.ndarray, np.ndarray]] = (),
@@ -373,22 +405,27 @@ class ShirtIK:
         act = np.ones(nv, bool) if active is None else np.asarray(active, bool)
         pri = [_Prior(np.asarray(qr, float), 1.0 / np.asarray(sd, float)) for qr, sd in priors]
         q = self.kin.clamp(np.asarray(q0, float))
+        lay = self._layout(cons)
+
+        # constant over the solve: the whitening of present centroids (zero for the others)
+        # and the absent ones grouped by camera
+        info = np.where(present[:, None, None], np.asarray(cons.sqrt_info, float), 0.0)
+        target = np.where(present[:, None], cons.target_px, 0.0)
+        groups = [(silhouettes[int(ci)], np.flatnonzero(absent & (cons.camera == ci))) for ci in np.unique(cons.camera[absent])]
+        groups = [(sil, sel, cons.sqrt_info[sel, 0, 0]) for sil, sel in groups]
 
         def residuals(qc: np.ndarray, jac: bool):
-            c, Jc = self.centroids(qc, cons, jac)
-            e = np.where(present[:, None], c - cons.target_px, 0.0)
-            r = np.einsum("nij,nj->ni", cons.sqrt_info, e)  # (n, 2) whitened
-            Jr = np.einsum("nij,njk->nik", cons.sqrt_info, Jc) if jac else None
-            Jr = np.where(present[:, None, None], Jr, 0.0) if jac else None
-            for ci in np.unique(cons.camera[absent]):
-                sel = np.flatnonzero(absent & (cons.camera == ci))
-                d, g = silhouettes[int(ci)].sample(c[sel])
-                inv = cons.sqrt_info[sel, 0, 0]
+            c, Jc = self.centroids(qc, cons, jac, lay)
+            e = np.where(present[:, None], c - target, 0.0)
+            r = np.einsum("nij,nj->ni", info, e)  # (n, 2) whitened
+            Jr = np.matmul(info, Jc) if jac else None
+            for sil, sel, inv in groups:
+                d, g = sil.sample(c[sel])
                 r[sel, 0], r[sel, 1] = d * inv, 0.0
                 if jac:
                     Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
                     Jr[sel, 1] = 0.0
-            norm = np.linalg.norm(r, axis=1)
+            norm = np.sqrt(np.einsum("ni,ni->n", r, r))
             w = np.where(norm > self.huber, np.sqrt(self.huber / np.maximum(norm, 1e-12)), 1.0)
             rs = [(r * w[:, None]).ravel()]
             Js = [(Jr * w[:, None, None]).reshape(-1, nv)] if jac else []

@@ -246,6 +246,13 @@ def _without_thin_bits(colour: np.ndarray) -> np.ndarray:
     return np.where(kept, colour, -1).astype(colour.dtype)
 
 
+def _border_band(size: int, band: int = 2) -> np.ndarray:
+    """``(size, size)`` bool: the pixels within ``band`` pixels of the crop's edge (those :func:`_touches_border` counts)."""
+    m = np.ones((size, size), bool)
+    m[band:-band, band:-band] = False
+    return m
+
+
 def _touches_border(colour: np.ndarray, band: int = 2, min_pixels: int = 4) -> bool:
     """Whether at least ``min_pixels`` classified pixels lie within ``band`` pixels of the crop's edge."""
     c = colour >= 0
@@ -483,21 +490,27 @@ class ShirtTracker:
                 lo, hi = self._prev_box[ci]
                 reach = np.max(np.abs(np.array([lo, hi]) - [loc.x, loc.y]))
                 side = max(side, 2.0 * reach * p.crop_margin)
-            side = min(side, 2.0 * max(img.shape[:2]))
+            limit = 2.0 * max(img.shape[:2])
+            side = min(side, limit)
+            full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0]) if masks[ci] is not None else None
             for attempt in range(2):
                 view = crop_view(loc.x, loc.y, side, p.work_size)
                 work = crop_image(img, view)
                 lin[ci] = SRGB_TO_LINEAR[work]
-                if masks[ci] is not None:
-                    full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0])
-                    fgs[ci] = crop_image(full.astype(np.uint8), view, cv2.INTER_NEAREST) > 0
+                if full is not None:
+                    fgs[ci] = crop_image(full.view(np.uint8), view, cv2.INTER_NEAREST) > 0
+                if attempt == 0 and side < limit:
+                    # shirt touching the crop's border: a limb reaches out of it (e.g. one the
+                    # previous pose lost); look again over a larger square, once.  Only the
+                    # border band decides this, and only it is classified here
+                    band = _border_band(view.size) if fgs[ci] is None else _border_band(view.size) & fgs[ci]
+                    probe = classify_gaussian(lin[ci], self.colours, self.W[ci], band, p.gaussian_threshold, None, self.other)
+                    if _touches_border(probe.colour):
+                        side = min(side * p.crop_growth, limit)
+                        continue
                 dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
                 cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other)
-                # shirt touching the crop's border: a limb reaches out of it (e.g. one the
-                # previous pose lost); look again over a larger square, once
-                if attempt or not _touches_border(cls.colour) or side >= 2.0 * max(img.shape[:2]):
-                    break
-                side = min(side * p.crop_growth, 2.0 * max(img.shape[:2]))
+                break
             if self._first_fraction[ci] is None:
                 self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
             poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]

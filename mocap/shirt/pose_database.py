@@ -110,8 +110,10 @@ def tiny_id_map(colour: np.ndarray, n_colours: int, margin: float = 1.08, percen
     ys, xs = np.nonzero(colour >= 0)
     if xs.size < _MIN_PIXELS:
         return None
-    lo = np.array([np.percentile(xs, percentile), np.percentile(ys, percentile)])
-    hi = np.array([np.percentile(xs, 100 - percentile), np.percentile(ys, 100 - percentile)])
+    # both ends of each axis from one call (one partition of the coordinates, not two)
+    px, py = np.percentile(xs, [percentile, 100 - percentile]), np.percentile(ys, [percentile, 100 - percentile])
+    lo = np.array([px[0], py[0]])
+    hi = np.array([px[1], py[1]])
     centre = 0.5 * (lo + hi)
     side = float(max(hi[0] - lo[0], hi[1] - lo[1]) + 1.0) * margin
     side = max(side, 4.0)
@@ -371,7 +373,9 @@ def blend_poses(hinges: np.ndarray, rotations: np.ndarray, weights: np.ndarray,
     w = np.asarray(weights, float)
     R = Rotation.from_matrix(rotations)
     # pairwise angles; the candidate with the most weight within cluster_deg seeds the cluster
-    rel = np.array([(R[i].inv() * R).magnitude() for i in range(len(R))])
+    # (angle of R_i^-1 R_j = 2 arccos |q_i . q_j|, all pairs at once)
+    quat = R.as_quat()
+    rel = 2.0 * np.arccos(np.clip(np.abs(quat @ quat.T), 0.0, 1.0))
     near = rel < np.radians(cluster_deg)
     seed = int(np.argmax(near @ w))
     used = near[seed]
