@@ -76,8 +76,6 @@ class FrameRenderer:
         as GL passes and reads back 8-bit frames (:mod:`simbench.render.gl_sensor`).
         Measured on one llvmpipe core at 640x480, the GL passes cost more than the
         numpy fast path (each full-screen pass is ~4 ms there), hence the default."""
-        if sensor_backend not in ("numpy", "reference", "gl"):
-            raise ValueError(f"sensor_backend must be 'numpy', 'reference' or 'gl', got {sensor_backend!r}")
         self.cameras = cameras
         self.cfg = sensor_cfg
         self.fps = fps
@@ -91,8 +89,16 @@ class FrameRenderer:
         self.sensors = [Sensor(sensor_cfg, fps) for _ in cameras]
         self.wbs = [WhiteBalance(sensor_cfg, fps) for _ in cameras]
         self.exposure_s = sensor_cfg.exposure_ms * 1e-3
-        self.sensor_backend = sensor_backend
-        self._gl = GLSensorPipeline(self.raster) if sensor_backend == "gl" else None
+        self._gl = None
+        self.set_sensor_backend(sensor_backend)
+
+    def set_sensor_backend(self, backend: str) -> None:
+        """Switch between ``"numpy"``, ``"reference"`` and ``"gl"`` (see the constructor)."""
+        if backend not in ("numpy", "reference", "gl"):
+            raise ValueError(f"sensor_backend must be 'numpy', 'reference' or 'gl', got {backend!r}")
+        self.sensor_backend = backend
+        if backend == "gl":
+            self._gl = self._gl or GLSensorPipeline(self.raster)
 
     # ------------------------------------------------------------------ shutter
     def subframe_count(self, pose_open: Pose, pose_mid: Pose, pose_close: Pose) -> int:
@@ -142,7 +148,7 @@ class FrameRenderer:
             canvas = cam.canvas(ss)
             acc = None
             idr = None
-            gl_post = self._gl
+            gl_post = self._gl if self.sensor_backend == "gl" else None
             if gl_post is not None:
                 rad_out = ("radiance_texture",)
             elif self.cfg.mode == "ir":
