@@ -90,6 +90,7 @@ class FrameRenderer:
         self.wbs = [WhiteBalance(sensor_cfg, fps) for _ in cameras]
         self.exposure_s = sensor_cfg.exposure_ms * 1e-3
         self._gl = None
+        self._buffers: dict[tuple[int, int], dict[str, np.ndarray]] = {}
         self.set_sensor_backend(sensor_backend)
 
     def set_sensor_backend(self, backend: str) -> None:
@@ -99,6 +100,20 @@ class FrameRenderer:
         self.sensor_backend = backend
         if backend == "gl":
             self._gl = self._gl or GLSensorPipeline(self.raster)
+
+    def _read_buffers(self, width: int, height: int) -> dict[str, np.ndarray]:
+        """Read-back arrays of one canvas size, reused from render to render: each is
+        consumed (added to the shutter sum, passed to the sensor, or counted) before the
+        next render of that size overwrites it."""
+        key = (width, height)
+        bufs = self._buffers.get(key)
+        if bufs is None:
+            bufs = self._buffers[key] = {
+                "radiance_rgba": np.empty((height, width, 4), np.float32),
+                "radiance_red": np.empty((height, width, 1), np.float32),
+                "ids": np.empty((height, width), np.int32),
+            }
+        return bufs
 
     # ------------------------------------------------------------------ shutter
     def subframe_count(self, pose_open: Pose, pose_mid: Pose, pose_close: Pose) -> int:
@@ -161,7 +176,7 @@ class FrameRenderer:
                 # Without blur the one sub-frame *is* mid-exposure: take its ids from the same pass.
                 outs = rad_out + (("ids",) if n == 1 else ())
                 out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                         outputs=outs)
+                                         outputs=outs, buffers=self._read_buffers(canvas.width, canvas.height))
                 if gl_post is not None:
                     acc = out["radiance_texture"] if n == 1 else gl_post.accumulate(
                         out["radiance_texture"], canvas.width, canvas.height, first=i == 0)
@@ -176,7 +191,7 @@ class FrameRenderer:
                 self.raster.update_dynamic(*mid_posed)
                 lights, ambient, ring = self._lights(t_mid, cam)
                 idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                         outputs=("ids",))["ids"]
+                                         outputs=("ids",), buffers=self._read_buffers(canvas.width, canvas.height))["ids"]
             vis[ci] = self._visible_fraction(cam, idr, mid_pose.marker_pos, ss)
             id_maps[ci] = cam.finish_nearest(idr, ss)
             if gl_post is not None:

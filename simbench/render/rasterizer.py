@@ -480,6 +480,7 @@ class Rasterizer:
         zfar: float = 50.0,
         specular: float = 1.0,
         cache_static: bool = True,
+        buffers: dict[str, np.ndarray] | None = None,
     ) -> dict[str, np.ndarray]:
         """Render one view.
 
@@ -491,6 +492,11 @@ class Rasterizer:
         ``RGBA32F`` radiance texture, drawn but not read back (for the GL sensor pass,
         :mod:`simbench.render.gl_sensor`). Only the requested images are drawn: the
         others of this size hold stale content afterwards.
+
+        ``buffers`` optionally maps output names (``radiance_rgba`` — also used for
+        ``radiance`` —, ``radiance_red`` (H, W, 1), ``ids``, ``depth``) to C-contiguous
+        arrays of the output's shape and dtype to read into (then returned, and
+        overwritten by the next call that uses them).
 
         With ``cache_static`` the static set (floor, walls, clutter) is drawn once per
         view and light state and copied in before the moving geometry is drawn: it
@@ -536,25 +542,31 @@ class Rasterizer:
         H, W = height, width
         if "radiance_texture" in outputs:
             out["radiance_texture"] = target.radiance
+
+        def read(attachment, fmt, typ, dtype, shape, name):
+            # Into the caller's array when given: PyOpenGL's own fresh array costs page
+            # faults on every call (~40 % of a float read-back here).
+            gl.glReadBuffer(attachment)
+            dst = None if buffers is None else buffers.get(name)
+            if dst is not None:
+                if dst.shape != shape or dst.dtype != dtype or not dst.flags.c_contiguous:
+                    raise ValueError(f"buffer {name!r} must be C-contiguous {shape} {np.dtype(dtype)}")
+                gl.glReadPixels(0, 0, W, H, fmt, typ, dst)
+                return dst
+            return np.frombuffer(gl.glReadPixels(0, 0, W, H, fmt, typ), dtype).reshape(shape)
+
         if "radiance" in outputs or "radiance_rgba" in outputs:
-            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
             # RGBA then drop alpha: Mesa converts RGBA -> RGB on read-back at 3x the cost.
-            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RGBA, gl.GL_FLOAT)
-            rgba = np.frombuffer(buf, np.float32).reshape(H, W, 4)
+            rgba = read(gl.GL_COLOR_ATTACHMENT0, gl.GL_RGBA, gl.GL_FLOAT, np.float32, (H, W, 4), "radiance_rgba")
             if "radiance" in outputs:
                 out["radiance"] = rgba[..., :3]
             if "radiance_rgba" in outputs:
                 out["radiance_rgba"] = rgba
         if "radiance_red" in outputs:  # monochrome (IR) sensors: one channel is enough
-            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT0)
-            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
-            out["radiance"] = np.frombuffer(buf, np.float32).reshape(H, W, 1)
+            out["radiance"] = read(gl.GL_COLOR_ATTACHMENT0, gl.GL_RED, gl.GL_FLOAT, np.float32, (H, W, 1),
+                                   "radiance_red")
         if "ids" in outputs:
-            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT1)
-            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED_INTEGER, gl.GL_INT)
-            out["ids"] = np.frombuffer(buf, np.int32).reshape(H, W)
+            out["ids"] = read(gl.GL_COLOR_ATTACHMENT1, gl.GL_RED_INTEGER, gl.GL_INT, np.int32, (H, W), "ids")
         if "depth" in outputs:
-            gl.glReadBuffer(gl.GL_COLOR_ATTACHMENT2)
-            buf = gl.glReadPixels(0, 0, W, H, gl.GL_RED, gl.GL_FLOAT)
-            out["depth"] = np.frombuffer(buf, np.float32).reshape(H, W)
+            out["depth"] = read(gl.GL_COLOR_ATTACHMENT2, gl.GL_RED, gl.GL_FLOAT, np.float32, (H, W), "depth")
         return out
