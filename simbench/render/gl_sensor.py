@@ -11,17 +11,23 @@ GL side so that only the final 8-bit frame is read back:
 3. distortion: each output pixel samples the 1x canvas bilinearly at its
    ``map_xy`` position, zero outside (``cv2.remap``, ``BORDER_CONSTANT``; here with
    exact float weights where OpenCV rounds them to 1/32 px);
-4. optics blur: separable Gaussian with OpenCV's kernel and ``BORDER_REFLECT_101``,
+4. optics blur: separable Gaussian, the kernel of
+   :func:`simbench.render.sensor.gaussian_half_kernel`, ``BORDER_REFLECT_101``,
    horizontal pass then vertical pass (fused into the sensor pass);
 5. sensor: electrons, shot noise (Gaussian approximation of Poisson, variance =
-   electrons) + read noise, full-well clip, gain x white balance, the same 14-bit
-   gamma table, 8-bit output; one channel in ``ir`` mode.
+   electrons) + read noise, full-well clip, gain x white balance, the 14-bit gamma
+   table's index and curve (computed, not looked up), 8-bit output; one channel in
+   ``ir`` mode.
 
-Why: on one llvmpipe core the numpy sensor (several full-image passes, a gather
-for the normal deviates, a gather for the gamma table) and the ``RGBA32F``
-read-back (4.9 MB per 640x480 frame) cost as much as rasterising the frame; the
-same arithmetic in a fragment shader runs on llvmpipe's 8-wide SIMD in one pass
-and the read-back shrinks 4x (RGBA8) or 16x (one channel).
+Why it is not the renderer's default (``FrameRenderer(sensor_backend="gl")`` opts in):
+the idea was to run the sensor's arithmetic in one SIMD fragment pass and read back
+8-bit frames instead of ``RGBA32F`` (4.9 MB per 640x480 frame). Measured on one
+llvmpipe core (LP_NUM_THREADS=1), a full-screen 640x480 pass costs ~4 ms before
+any arithmetic (fetch, per-4x4-stamp overhead, store), each transcendental per
+channel ~0.7 ms, each extra texture tap 1-3 ms: blur + sensor passes took about
+twice as long as :meth:`simbench.render.sensor.Sensor.frame` plus the float
+read-back, measured side by side. With a real GPU or a multi-threaded llvmpipe the balance differs;
+the passes are kept, tested against the reference, for that case.
 
 Noise comes from a counter-based hash (``pcg4d``, Jarzynski & Olano, "Hash
 Functions for GPU Rendering", JCGT 2020) of (pixel x, pixel y, two 32-bit seeds);
@@ -34,7 +40,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from simbench.render.rasterizer import Rasterizer, _compile
@@ -99,8 +104,8 @@ void main() {
 """
 
 _REFLECT = """
-// OpenCV's BORDER_REFLECT_101 (... 2 1 | 0 1 2 ... n-1 | n-2 ...), branch-free: valid
-// for -n < i < 2n - 1, which holds since the blur radius is checked against the image.
+// OpenCV's BORDER_REFLECT_101 (... 2 1 | 0 1 2 ... n-1 | n-2 ...), branch-free; exact
+// for -n < i < 2n - 1 (clamped beyond: only images narrower than the blur radius).
 int reflect101(int i, int n) {
     return clamp((n - 1) - abs((n - 1) - abs(i)), 0, n - 1);
 }
@@ -108,7 +113,7 @@ int reflect101(int i, int n) {
 
 # Passes are compiled per variant (blur radius, noise, colour) with the choices as
 # constants: llvmpipe runs both sides of a branch on a uniform and does not unroll
-# loops with a uniform bound, which cost 2-3x here.
+# loops with a uniform bound, which cost up to 2x here.
 _BLUR_H = """
 #version 330 core
 #define R %(r)d

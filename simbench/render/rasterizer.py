@@ -10,7 +10,8 @@ uniform by name lookup per primitive per frame; measured here that caps it at ab
 12-17 fps for one 640x480 camera. This class keeps all scene geometry in two vertex
 buffers (static set, and the moving body re-posed on the CPU with numpy, a few
 thousand vertices), draws them in two calls into three colour attachments (multiple
-render targets) and reads back only what was asked for.
+render targets), draws and reads back only what was asked for, and culls the back
+faces of closed meshes (see :func:`closed_outward_faces`).
 
 Conventions
 -----------
