@@ -86,7 +86,8 @@ class FrameRenderer:
         self.raster = rasterizer or Rasterizer()
         self.raster.set_static(static)
         self.raster.set_dynamic(moving.buffers)
-        self.sensors = [Sensor(sensor_cfg, fps) for _ in cameras]
+        work: dict = {}  # cameras are processed in turn: one set of sensor scratch arrays
+        self.sensors = [Sensor(sensor_cfg, fps, work) for _ in cameras]
         self.wbs = [WhiteBalance(sensor_cfg, fps) for _ in cameras]
         self.exposure_s = sensor_cfg.exposure_ms * 1e-3
         self._gl = None

@@ -95,17 +95,19 @@ class WhiteBalance:
 class Sensor:
     """Turns time-averaged radiance into the camera's 8-bit frame."""
 
-    def __init__(self, cfg: SensorConfig, fps: float) -> None:
+    def __init__(self, cfg: SensorConfig, fps: float, work: dict | None = None) -> None:
+        """``work``: scratch arrays of :meth:`frame`, shareable by the sensors of cameras
+        that are processed one after the other (a new dict if None)."""
         self.cfg = cfg
         self.scale = np.float32(cfg.electrons_per_unit * cfg.exposure_ms * 1e-3)
         self.lut = _gamma_lut(cfg.gamma)
         self.fps = fps
-        self._buffers: dict[tuple, np.ndarray] = {}
+        self._buffers: dict[tuple, np.ndarray] = {} if work is None else work
 
     # ------------------------------------------------------------ fast path
     def _buffer(self, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
-        """A work array of this camera, reused from frame to frame (fresh multi-MB arrays
-        cost page faults on every frame)."""
+        """A scratch array, reused from frame to frame (fresh multi-MB arrays cost page
+        faults on every frame); its content does not outlive a :meth:`frame` call."""
         key = (name, shape, np.dtype(dtype).str)
         buf = self._buffers.get(key)
         if buf is None:
