@@ -165,7 +165,7 @@ def best_reference(linear_rgb: np.ndarray, model: ColourModel, references: list[
     return best_i, best_c
 
 
-def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int) -> np.ndarray:
+def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int, reduce: int = 1) -> np.ndarray:
     """Distance ``(P, n)`` float32 (working pixels of the full crop) from pixels to the nearest pixel of each patch.
 
     Parameters
@@ -175,21 +175,47 @@ def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, 
         run there: the prior needs distances to a few pixels, not to a tenth of one).
     idx : (n,) int
         Flat indices of the query pixels in the ``full_size x full_size`` crop.
+    reduce : int
+        The transforms run on cells of ``reduce x reduce`` map pixels (a cell holds a
+        patch if any of its pixels does; distances between cell centres): a transform
+        costs about the square of its side, and the prior and the patch split need
+        distances to a few cells, not to one pixel of the map.
 
     Returns
     -------
     (P, n) float32
         ``inf`` for patches absent from the map.
     """
-    r = patch_map.shape[0]
+    pm = np.asarray(patch_map)
+    r0 = pm.shape[0]
+    if reduce > 1:
+        r = r0 // reduce
+        pm = pm[: r * reduce, : r * reduce]
+    else:
+        r = r0
     f = full_size / r
     ys, xs = np.divmod(np.asarray(idx), full_size)
     cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
-    out = np.full((n_patches, len(cell)), np.inf, np.float32)
-    for p in np.unique(patch_map[patch_map >= 0]):
-        dt = cv2.distanceTransform((patch_map != p).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        out[p] = dt.ravel()[cell] * np.float32(f)
-    return out
+    present = np.unique(pm[pm >= 0])
+    if present.size == 0:
+        return np.full((n_patches, len(cell)), np.inf, np.float32)
+    # not-this-patch masks of all present patches at once, (m, r, r) uint8
+    other = pm[None] != present[:, None, None]
+    if reduce > 1:
+        # a cell is not the patch if none of its pixels is (strided ANDs: far faster than .all over axes)
+        pooled = other[:, ::reduce, ::reduce].copy()
+        for dy in range(reduce):
+            for dx in range(reduce):
+                if dy or dx:
+                    pooled &= other[:, dy::reduce, dx::reduce]
+        other = pooled
+    other = other.view(np.uint8)
+    # distances per map cell, then one gather for all query pixels
+    D = np.full((n_patches, r * r), np.inf, np.float32)
+    for i, p in enumerate(present):
+        D[p] = cv2.distanceTransform(other[i], cv2.DIST_L2, cv2.DIST_MASK_PRECISE).ravel()
+    D[present] *= np.float32(f)
+    return D[:, cell]
 
 
 def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, colour_distance_px: np.ndarray,

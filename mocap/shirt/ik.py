@@ -132,24 +132,22 @@ class Silhouette:
     scale: float
 
     def __post_init__(self) -> None:
-        gy, gx = np.gradient(np.asarray(self.distance_px, np.float64))
-        object.__setattr__(self, "_grad", (gx / self.scale, gy / self.scale))
+        D = np.asarray(self.distance_px, np.float64)
+        gy, gx = np.gradient(D)
+        # distance and gradient interleaved per pixel: one bilinear look-up serves all three
+        object.__setattr__(self, "_field", np.stack([D, gx / self.scale, gy / self.scale], axis=2).reshape(-1, 3))
 
     def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance ``(n,)`` px at image points ``(n, 2)`` (bilinear, clamped) and its gradient ``(n, 2)`` per image px."""
-        D = self.distance_px
-        h, w = D.shape
+        h, w = self.distance_px.shape
         x = np.clip((uv[:, 0] - self.x0) / self.scale, 0, w - 1.001)
         y = np.clip((uv[:, 1] - self.y0) / self.scale, 0, h - 1.001)
         i, j = np.floor(y).astype(int), np.floor(x).astype(int)
-        fy, fx = y - i, x - j
-
-        def bil(M: np.ndarray) -> np.ndarray:
-            return (M[i, j] * (1 - fx) * (1 - fy) + M[i, j + 1] * fx * (1 - fy) + M[i + 1, j] * (1 - fx) * fy
-                    + M[i + 1, j + 1] * fx * fy)
-
-        gx, gy = self._grad
-        return bil(D), np.stack([bil(gx), bil(gy)], axis=1)
+        fy, fx = (y - i)[:, None], (x - j)[:, None]
+        k = i * w + j
+        M = self._field
+        v = (M[k] * (1 - fx) * (1 - fy) + M[k + 1] * fx * (1 - fy) + M[k + w] * (1 - fx) * fy + M[k + w + 1] * fx * fy)
+        return v[:, 0], v[:, 1:]
 
 
 @dataclass(frozen=True, eq=False)

@@ -103,9 +103,18 @@ class ShirtPipelineParams:
         Working resolution of the crop (pixels per side, at most).
     wb_size : int
         Resolution of the final pose's id map for the white-balance update.
+    wb_every : int
+        Step 5 runs on every ``wb_every``-th frame, and on every frame where step 1
+        classified poorly (a change of light): the paper updates ``W`` on every frame,
+        but in steady light consecutive estimates barely differ.
     render_size : int
         Resolution of the blended pose's id map in each crop (step 3's distance
         transforms and the IK's anchors).
+    distance_reduce : int
+        Step 3's distance transforms (and the patch split's) run on cells of this many
+        render pixels per side (2: 48 x 48 cells, a cell 3 working pixels): the prior
+        weighs distances of a fraction of the shirt, and a transform costs the square of
+        its side.
     gaussian_threshold, assisted_threshold : float
         ``T`` of step 1 (3) and step 3 (5).
     poor_fraction : float
@@ -124,7 +133,9 @@ class ShirtPipelineParams:
     reference_distance : float
         Frobenius distance for a new reference illumination (0.5).
     ik_iterations, global_iterations : int
-        Levenberg-Marquardt iterations of step 4 and of the 6-DoF fit.
+        Levenberg-Marquardt iterations of step 4 and of the 6-DoF fit (at most).
+    ik_rel_tol : float
+        Both stop earlier when an iteration lowers the energy by less than this fraction.
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
@@ -156,7 +167,9 @@ class ShirtPipelineParams:
     crop_growth: float = 1.5
     work_size: int = 144
     wb_size: int = 64
+    wb_every: int = 1
     render_size: int = 96
+    distance_reduce: int = 2
     gaussian_threshold: float = 3.0
     assisted_threshold: float = 5.0
     poor_fraction: float = 0.4
@@ -167,6 +180,7 @@ class ShirtPipelineParams:
     reference_distance: float = 0.5
     ik_iterations: int = 8
     global_iterations: int = 10
+    ik_rel_tol: float = 1e-5
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
@@ -176,6 +190,8 @@ class ShirtPipelineParams:
     keep_classification: bool = False
 
     def __post_init__(self) -> None:
+        if self.wb_every < 1 or self.distance_reduce < 1 or self.render_size < 8 * self.distance_reduce:
+            raise MocapInputError(f"ShirtPipelineParams: wb_every and distance_reduce must be at least 1 and render_size at least 8 cells; got {self}")
         if self.crop_factor <= 0 or self.work_size < 16 or self.wb_size < 8 or self.neighbours < 1:
             raise MocapInputError(f"ShirtPipelineParams: crop_factor, work_size (>= 16), wb_size (>= 8) and neighbours (>= 1) must be positive; got {self}")
 
@@ -331,6 +347,8 @@ class ShirtTracker:
         self.q_prev: np.ndarray | None = None
         self._prev_box: list[tuple[np.ndarray, np.ndarray] | None] = [None] * C
         self._first_fraction: list[float | None] = [None] * C
+        self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
+        self._frames = 0  # frames finished
         self._root_active = np.zeros(UPPER_NV, bool)
         self._root_active[:6] = True
         K = colour_model.n_colours
@@ -405,18 +423,18 @@ class ShirtTracker:
         sil = {ci: o.silhouette for ci, o in enumerate(est.cameras) if o.silhouette is not None}
         if len(cons):
             res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
-                                silhouettes=sil)
+                                silhouettes=sil, rel_tol=p.ik_rel_tol)
             if p.pose_prior and self.q_prev is not None and est.q_prior is not self.q_prev:
                 # also start from the previous pose (a blend far off can hold the solver in a
                 # local minimum); keep the lower energy
-                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil)
+                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
                 res = alt if alt.cost < res.cost else res
             for _ in range(p.correspondence_passes - 1):
                 # the two patches of a colour were told apart (and anchored) by the blended
                 # pose; a blend far off swaps them: split again with the solved pose
                 cons2 = self.reassign(res.q, est.cameras, lin)
                 if len(cons2):
-                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil)
+                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
             q = res.q
         else:
             q = q_b.copy()
@@ -433,10 +451,14 @@ class ShirtTracker:
 
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
-        if self.params.adaptive_white_balance:
+        p = self.params
+        # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
+        # classified poorly in a camera (the light changed)
+        if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
             for ci, o in enumerate(obs):
                 if o.tiny is not None and lin[ci] is not None:
                     self._update_white_balance(ci, q, o, lin[ci])
+        self._frames += 1
         self.q_prev = np.asarray(q, float).copy()
         # where the shirt of this pose is in every image (the next crop must hold it)
         P = self.model.shirt_vertices(self.q_prev)
@@ -480,6 +502,7 @@ class ShirtTracker:
 
         # 1. crop, white balance, Gaussian classification (+ reference illuminations)
         t = clock()
+        self._poor = [False] * C
         lin, fgs, dists = [None] * C, [None] * C, [None] * C
         for ci, img in enumerate(images):
             loc = obs[ci].location
@@ -514,6 +537,7 @@ class ShirtTracker:
             if self._first_fraction[ci] is None:
                 self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
             poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]
+            self._poor[ci] = poor
             if p.adaptive_white_balance and poor and len(self.references[ci]) > 1:
                 i, alt = best_reference(lin[ci], self.colours, self.references[ci].matrices, fgs[ci], p.gaussian_threshold,
                                         self.other)
@@ -590,7 +614,7 @@ class ShirtTracker:
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
         rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
         idx = foreground_pixels(lin, fg)[0]
-        return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size)
+        return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
 
     def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
         p = self.params
@@ -607,6 +631,20 @@ class ShirtTracker:
         """
         if self.q_prev is None:
             return q_b, {}
+        # the classified pixels of every camera and their cells in the render (shared by both poses)
+        cells = {}
+        for ci in seen:
+            o = obs[ci]
+            idx = foreground_pixels(lin[ci], fgs[ci])[0]
+            col = o.step1.colour.ravel()[idx]
+            on = col >= 0
+            if not on.any():
+                continue
+            ys, xs = np.divmod(idx[on], o.view.size)
+            r = p.render_size
+            cy = np.minimum((ys * r) // o.view.size, r - 1)
+            cx = np.minimum((xs * r) // o.view.size, r - 1)
+            cells[ci] = ((cy + 1) * (r + 2) + cx + 1, col[on])
         scores, renders = [], []
         for q in (q_b, self.q_prev):
             hit = tot = 0
@@ -616,30 +654,25 @@ class ShirtTracker:
                 rview = _reduced(o.view, p.render_size)
                 rend = self.model.render_camera(q, self.cameras[ci], rview)
                 renders[-1][ci] = rend
-                idx = foreground_pixels(lin[ci], fgs[ci])[0]
-                col = o.step1.colour.ravel()[idx]
-                on = col >= 0
-                if not on.any():
+                if ci not in cells:
                     continue
                 # the rendered colour at (or next to) each classified pixel: a 3x3 max-filter of
-                # each colour's mask at the render's resolution (a few image pixels per cell)
-                ys, xs = np.divmod(idx[on], o.view.size)
+                # each colour's mask at the render's resolution (a few image pixels per cell);
+                # the map padded by its edge values, the neighbours are flat offsets
+                base, col = cells[ci]
                 r = rend.colour.shape[0]
-                cy = np.minimum((ys * r) // o.view.size, r - 1)
-                cx = np.minimum((xs * r) // o.view.size, r - 1)
-                match = np.zeros(on.sum(), bool)
-                for dy in (-1, 0, 1):
-                    for dx in (-1, 0, 1):
-                        yy, xx = np.clip(cy + dy, 0, r - 1), np.clip(cx + dx, 0, r - 1)
-                        match |= rend.colour[yy, xx] == col[on]
+                padded = np.pad(rend.colour, 1, mode="edge").ravel()
+                match = np.zeros(len(col), bool)
+                for off in (-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3):
+                    match |= padded[base + off] == col
                 hit += int(match.sum())
-                tot += int(on.sum())
+                tot += len(col)
             scores.append(hit / max(tot, 1))
         best = 1 if scores[1] > scores[0] else 0
         out = {}
         for ci, rend in renders[best].items():
             idx = foreground_pixels(lin[ci], fgs[ci])[0]
-            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size))
+            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
         return (self.q_prev if best else q_b), out
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
@@ -667,7 +700,7 @@ class ShirtTracker:
                 continue
             rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
             idx = foreground_pixels(lin[ci], o.foreground)[0]
-            pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size)
+            pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
             parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
         return Constraints.concatenate(parts)
 
@@ -703,7 +736,7 @@ class ShirtTracker:
         cons = Constraints.concatenate(parts)
         if len(cons) < 3:
             return q0
-        return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations).q
+        return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations, rel_tol=p.ik_rel_tol).q
 
     def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray) -> None:
         """Step 5: ``W*`` from the colours under the final pose's id map."""
