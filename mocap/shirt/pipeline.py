@@ -475,9 +475,10 @@ class ShirtTracker:
         # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
         # classified poorly in a camera (the light changed)
         if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
+            world = self.model.world_vertices(q)
             for ci, o in enumerate(obs):
                 if o.tiny is not None and lin[ci] is not None:
-                    self._update_white_balance(ci, q, o, lin[ci])
+                    self._update_white_balance(ci, q, o, lin[ci], world)
         self._frames += 1
         self.q_prev = np.asarray(q, float).copy()
         # where the shirt of this pose is in every image (the next crop must hold it)
@@ -669,10 +670,11 @@ class ShirtTracker:
         for q in (q_b, self.q_prev):
             hit = tot = 0
             renders.append({})
+            world = self.model.world_vertices(q)
             for ci in seen:
                 o = obs[ci]
                 rview = _reduced(o.view, p.render_size)
-                rend = self.model.render_camera(q, self.cameras[ci], rview)
+                rend = self.model.render_camera(q, self.cameras[ci], rview, world)
                 renders[-1][ci] = rend
                 if ci not in cells:
                     continue
@@ -715,10 +717,11 @@ class ShirtTracker:
     def reassign(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> Constraints:
         """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
         parts = []
+        world = self.model.world_vertices(q)
         for ci, o in enumerate(obs):
             if o.final is None or lin[ci] is None:
                 continue
-            rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
+            rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size), world)
             idx = foreground_pixels(lin[ci], o.foreground)[0]
             pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
             parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
@@ -758,11 +761,12 @@ class ShirtTracker:
             return q0
         return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations, rel_tol=p.ik_rel_tol).q
 
-    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray) -> None:
-        """Step 5: ``W*`` from the colours under the final pose's id map."""
+    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray,
+                              world: np.ndarray | None = None) -> None:
+        """Step 5: ``W*`` from the colours under the final pose's id map (``world``: its vertices, if at hand)."""
         p = self.params
         view = _reduced(o.view, p.wb_size)
-        rend = self.model.render_camera(q, self.cameras[ci], view)
+        rend = self.model.render_camera(q, self.cameras[ci], view, world)
         small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
         means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
         W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4)

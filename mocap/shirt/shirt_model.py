@@ -582,9 +582,13 @@ class ShirtModel:
         colour = np.where(ok, self.face_colour[f], -1).astype(np.int16)
         return Rendered(face, patch, colour)
 
-    def render_camera(self, q: np.ndarray, camera: Camera, view: CropView) -> Rendered:
-        """Rasterise pose ``q`` as seen by ``camera`` in the crop ``view`` (working pixels)."""
-        P = self.world_vertices(q)
+    def render_camera(self, q: np.ndarray, camera: Camera, view: CropView, world: np.ndarray | None = None) -> Rendered:
+        """Rasterise pose ``q`` as seen by ``camera`` in the crop ``view`` (working pixels).
+
+        ``world`` : (V, 3) float, optional — :meth:`world_vertices` of ``q`` when the caller
+        already has them (one pose rendered in several cameras).
+        """
+        P = self.world_vertices(q) if world is None else world
         Xc = P @ camera.R.T + camera.t
         z = Xc[:, 2]
         if np.any(camera.dist != 0):
