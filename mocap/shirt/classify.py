@@ -130,7 +130,7 @@ def _result(shape: tuple[int, int], idx: np.ndarray, best: np.ndarray, score: np
 
 def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
                       threshold: float = 3.0, distances: np.ndarray | None = None,
-                      other: ColourModel | None = None) -> Classification:
+                      other: ColourModel | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None) -> Classification:
     """Step 1: nearest Gaussian after white balance, thresholded (``T``), foreground only.
 
     Parameters
@@ -145,8 +145,10 @@ def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray,
     other : ColourModel, optional
         Not-shirt colours of the session (:func:`mocap.shirt.colour_model.train_other_colours`):
         a pixel nearer to one of them than to every shirt colour stays unclassified.
+    pixels : ((n,) int, (n, 3) float32), optional
+        ``foreground_pixels(linear_rgb, foreground)`` when the caller has it.
     """
-    idx, x = foreground_pixels(linear_rgb, foreground)
+    idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
     best = D.argmin(axis=1).astype(np.int16)
     score = np.take_along_axis(D, best[:, None].astype(np.int64), axis=1)[:, 0]
@@ -220,7 +222,8 @@ def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, 
 
 def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, colour_distance_px: np.ndarray,
                            prior_weight: float, foreground: np.ndarray | None, threshold: float = 5.0,
-                           distances: np.ndarray | None = None, other: ColourModel | None = None) -> Classification:
+                           distances: np.ndarray | None = None, other: ColourModel | None = None,
+                           pixels: tuple[np.ndarray, np.ndarray] | None = None) -> Classification:
     """Step 3: Mahalanobis distance plus ``prior_weight * d(r_b, k)``, thresholded at ``T``.
 
     Parameters
@@ -233,8 +236,10 @@ def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.nda
         ``C = 6 / s``.
     other : ColourModel, optional
         Not-shirt colours (see :func:`classify_gaussian`); they carry no pose prior.
+    pixels : ((n,) int, (n, 3) float32), optional
+        ``foreground_pixels(linear_rgb, foreground)`` when the caller has it.
     """
-    idx, x = foreground_pixels(linear_rgb, foreground)
+    idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
     total = D + np.minimum(np.asarray(colour_distance_px, np.float32).T, 1e6) * np.float32(prior_weight)
     best = total.argmin(axis=1).astype(np.int16)

@@ -221,6 +221,7 @@ class CameraObservation:
     ray_rotation: np.ndarray | None = None
     W: np.ndarray | None = None
     foreground: np.ndarray | None = None
+    pixels: tuple[np.ndarray, np.ndarray] | None = None  # flat indices and linear RGB of the crop's foreground pixels
     silhouette: Silhouette | None = None
     n_constraints: int = 0
 
@@ -361,6 +362,9 @@ class ShirtTracker:
         self._root_active[:6] = True
         K = colour_model.n_colours
         self._colour_members = [np.flatnonzero(self.model.patch_colour == k) for k in range(K)]
+        self._colour_order = np.argsort(self.model.patch_colour, kind="stable")
+        counts = np.array([len(m) for m in self._colour_members])
+        self._colour_starts = np.concatenate([[0], np.cumsum(counts)[:-1]]) if np.all(counts > 0) else None
 
     # ------------------------------------------------------------------ helpers
     def _ray_rotation(self, ci: int, uv: np.ndarray) -> np.ndarray:
@@ -475,10 +479,10 @@ class ShirtTracker:
         # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
         # classified poorly in a camera (the light changed)
         if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
-            world = self.model.world_vertices(q)
-            for ci, o in enumerate(obs):
-                if o.tiny is not None and lin[ci] is not None:
-                    self._update_white_balance(ci, q, o, lin[ci], world)
+            cams = [ci for ci, o in enumerate(obs) if o.tiny is not None and lin[ci] is not None]
+            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, p.wb_size)) for ci in cams])
+            for ci, rend in zip(cams, rends):
+                self._update_white_balance(ci, q, obs[ci], lin[ci], rend)
         self._frames += 1
         self.q_prev = np.asarray(q, float).copy()
         # where the shirt of this pose is in every image (the next crop must hold it)
@@ -552,8 +556,10 @@ class ShirtTracker:
                     if _touches_border(probe.colour):
                         side = min(side * p.crop_growth, limit)
                         continue
-                dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
-                cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other)
+                obs[ci].pixels = foreground_pixels(lin[ci], fgs[ci])
+                dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
+                cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other,
+                                        obs[ci].pixels)
                 break
             if self._first_fraction[ci] is None:
                 self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
@@ -565,7 +571,7 @@ class ShirtTracker:
                 if alt.classified_fraction > cls.classified_fraction:
                     self.W[ci] = self.references[ci].matrices[i].copy()
                     cls = alt
-                    dists[ci] = self.colours.distances(foreground_pixels(lin[ci], fgs[ci])[1], self.W[ci])
+                    dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
             obs[ci].view, obs[ci].step1, obs[ci].W, obs[ci].foreground = view, cls, self.W[ci].copy(), fgs[ci]
         T["classify"] = (clock() - t) * 1e3
 
@@ -612,11 +618,15 @@ class ShirtTracker:
             # the prior pose's id map at a reduced resolution: distance transforms and anchors
             rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
             if p.pose_prior:
-                cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
-                                  for m in self._colour_members]) * np.float32(o.view.scale)
+                # each colour's distance: the least over its patches (patches sorted by colour)
+                if self._colour_starts is not None:
+                    cdist = np.minimum.reduceat(pdist[self._colour_order], self._colour_starts, axis=0) * np.float32(o.view.scale)
+                else:
+                    cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
+                                      for m in self._colour_members]) * np.float32(o.view.scale)
                 # C = 6 / s, s the side of the shirt's square (image pixels)
                 final = classify_pose_assisted(lin[ci], self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
-                                               fgs[ci], p.assisted_threshold, dists[ci], self.other)
+                                               fgs[ci], p.assisted_threshold, dists[ci], self.other, o.pixels)
             else:
                 final = o.step1
             o.final = final
@@ -634,7 +644,7 @@ class ShirtTracker:
     def _render_distances(self, q: np.ndarray, ci: int, o: CameraObservation, lin: np.ndarray, fg: np.ndarray | None):
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
         rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
-        idx = foreground_pixels(lin, fg)[0]
+        idx = o.pixels[0]
         return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
 
     def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
@@ -656,7 +666,7 @@ class ShirtTracker:
         cells = {}
         for ci in seen:
             o = obs[ci]
-            idx = foreground_pixels(lin[ci], fgs[ci])[0]
+            idx = o.pixels[0]
             col = o.step1.colour.ravel()[idx]
             on = col >= 0
             if not on.any():
@@ -670,11 +680,9 @@ class ShirtTracker:
         for q in (q_b, self.q_prev):
             hit = tot = 0
             renders.append({})
-            world = self.model.world_vertices(q)
-            for ci in seen:
+            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, p.render_size)) for ci in seen])
+            for ci, rend in zip(seen, rends):
                 o = obs[ci]
-                rview = _reduced(o.view, p.render_size)
-                rend = self.model.render_camera(q, self.cameras[ci], rview, world)
                 renders[-1][ci] = rend
                 if ci not in cells:
                     continue
@@ -693,7 +701,7 @@ class ShirtTracker:
         best = 1 if scores[1] > scores[0] else 0
         out = {}
         for ci, rend in renders[best].items():
-            idx = foreground_pixels(lin[ci], fgs[ci])[0]
+            idx = obs[ci].pixels[0]
             out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
         return (self.q_prev if best else q_b), out
 
@@ -717,12 +725,11 @@ class ShirtTracker:
     def reassign(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> Constraints:
         """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
         parts = []
-        world = self.model.world_vertices(q)
-        for ci, o in enumerate(obs):
-            if o.final is None or lin[ci] is None:
-                continue
-            rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size), world)
-            idx = foreground_pixels(lin[ci], o.foreground)[0]
+        cams = [ci for ci, o in enumerate(obs) if o.final is not None and lin[ci] is not None]
+        rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, self.params.render_size)) for ci in cams])
+        for ci, rend in zip(cams, rends):
+            o = obs[ci]
+            idx = o.pixels[0]
             pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
             parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
         return Constraints.concatenate(parts)
@@ -761,12 +768,9 @@ class ShirtTracker:
             return q0
         return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations, rel_tol=p.ik_rel_tol).q
 
-    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray,
-                              world: np.ndarray | None = None) -> None:
-        """Step 5: ``W*`` from the colours under the final pose's id map (``world``: its vertices, if at hand)."""
+    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray, rend) -> None:
+        """Step 5: ``W*`` from the colours under the final pose's id map ``rend`` (at ``wb_size``)."""
         p = self.params
-        view = _reduced(o.view, p.wb_size)
-        rend = self.model.render_camera(q, self.cameras[ci], view, world)
         small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
         means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
         W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4)

@@ -599,6 +599,38 @@ class ShirtModel:
             uv = (Xc[:, :2] / zs[:, None]) @ camera.K[:2, :2].T + camera.K[:2, 2]
         return self._finish(rasterise_faces(view.from_image(uv), z, self.faces, view.size, view.size))
 
+    def _project(self, P: np.ndarray, camera: Camera, view: CropView) -> tuple[np.ndarray, np.ndarray]:
+        """Crop-view pixel positions ``(V, 2)`` and depths ``(V,)`` of world points ``P``."""
+        Xc = P @ camera.R.T + camera.t
+        z = Xc[:, 2]
+        if np.any(camera.dist != 0):
+            uv, _ = cv2.projectPoints(P, camera.rvec, camera.t, camera.K, camera.dist)
+            uv = uv.reshape(-1, 2)
+        else:
+            zs = np.where(z > _NEAR_M, z, 1.0)
+            uv = (Xc[:, :2] / zs[:, None]) @ camera.K[:2, :2].T + camera.K[:2, 2]
+        return view.from_image(uv), z
+
+    def render_cameras(self, q: np.ndarray, shots: list[tuple[Camera, CropView]], world: np.ndarray | None = None) -> list[Rendered]:
+        """:meth:`render_camera` of one pose in several (camera, crop view) pairs of one size, one rasteriser call.
+
+        The same pixels as separate calls (each camera's triangles go to their own layer).
+        """
+        if not shots:
+            return []
+        size = shots[0][1].size
+        if any(v.size != size for _, v in shots):
+            return [self.render_camera(q, c, v, world) for c, v in shots]
+        P = self.world_vertices(q) if world is None else world
+        V, T, n = len(P), len(self.faces), len(shots)
+        proj = [self._project(P, c, v) for c, v in shots]
+        uv = np.concatenate([u for u, _ in proj])
+        z = np.concatenate([d for _, d in proj])
+        faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
+        layer = np.repeat(np.arange(n), T)
+        face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
+        return [self._finish(np.where(face[i] >= 0, face[i] - i * T, -1).astype(np.int32)) for i in range(n)]
+
     def view_vertices(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
         """``(V, 3)`` vertices in a view frame for a root at the origin with orientation ``view_rotation``.
 
