@@ -374,21 +374,28 @@ class ShirtTracker:
             np.linalg.solve(cam.K, np.array([uv[0], uv[1], 1.0]))[:2]
         return look_at_view(np.array([xy[0], xy[1], 1.0]))
 
-    def _canonical(self, hinges: np.ndarray, view_rotation: np.ndarray):
-        """Orthographic render of a pose in a view, its tiny square (view metres), anchors and centroids."""
-        vv = self.model.view_vertices(hinges, view_rotation)
-        centre, side = self.model.shirt_extent(vv)
-        side *= _CANONICAL_MARGIN
-        rend = self.model.render_orthographic(vv, centre, side, _CANONICAL_SIZE)
-        tm = tiny_id_map(rend.colour, self.model.n_colours)
-        if tm is None:
-            return None
-        px = side / _CANONICAL_SIZE
-        box_c = centre + (tm.centre + 0.5 - _CANONICAL_SIZE / 2.0) * px
-        box_s = tm.side * px
-        cents, counts = patch_centroids(rend.patch, self.model.n_patches)
-        cents_m = centre + (cents + 0.5 - _CANONICAL_SIZE / 2.0) * px
-        return box_c, box_s, self.model.patch_anchors(rend), cents_m, counts
+    def _canonicals(self, hinges: np.ndarray, view_rotations: list[np.ndarray]) -> list:
+        """Orthographic render of a pose in several views, and per view its tiny square (view metres), anchors and
+        centroids (None where no shirt shows)."""
+        # the root at the origin with identity orientation, then each view's rotation
+        base = self.model.world_vertices(self.kin.make_q(np.eye(3), np.zeros(3), hinges))
+        vvs = [base @ np.asarray(V, float).T for V in view_rotations]
+        ext = [self.model.shirt_extent(vv) for vv in vvs]
+        sides = [sd * _CANONICAL_MARGIN for _, sd in ext]
+        rends = self.model.render_orthographic_views(vvs, [c for c, _ in ext], sides, _CANONICAL_SIZE)
+        out = []
+        for (centre, _), side, rend in zip(ext, sides, rends):
+            tm = tiny_id_map(rend.colour, self.model.n_colours)
+            if tm is None:
+                out.append(None)
+                continue
+            px = side / _CANONICAL_SIZE
+            box_c = centre + (tm.centre + 0.5 - _CANONICAL_SIZE / 2.0) * px
+            box_s = tm.side * px
+            cents, counts = patch_centroids(rend.patch, self.model.n_patches)
+            cents_m = centre + (cents + 0.5 - _CANONICAL_SIZE / 2.0) * px
+            out.append((box_c, box_s, self.model.patch_anchors(rend), cents_m, counts))
+        return out
 
     def _constraints(self, ci: int, targets_px: np.ndarray, ok: np.ndarray, anchors, sqrt_info: np.ndarray,
                      size_px: float, absent: np.ndarray | None = None) -> Constraints:
@@ -742,11 +749,11 @@ class ShirtTracker:
         """Step 2's 6-DoF fit of the blended pose to the query squares of every camera."""
         p = self.params
         parts, roots = [], []
-        for ci in seen:
+        # root -> ray view of every camera
+        cans = self._canonicals(hinges, [obs[ci].ray_rotation @ self.cameras[ci].R @ R_world for ci in seen])
+        for ci, can in zip(seen, cans):
             o = obs[ci]
             cam = self.cameras[ci]
-            V = o.ray_rotation @ cam.R @ R_world  # root -> ray view
-            can = self._canonical(hinges, V)
             if can is None:
                 continue
             box_c, box_s, anchors, cents_m, counts = can

@@ -651,6 +651,20 @@ class ShirtModel:
         z = view_vertices[:, 2] + 100.0
         return self._finish(rasterise_faces(uv, z, self.faces, size, size))
 
+    def render_orthographic_views(self, view_vertices: list[np.ndarray], centres_m: list[np.ndarray], sides_m: list[float],
+                                  size: int) -> list[Rendered]:
+        """:meth:`render_orthographic` of several views, one rasteriser call (the same pixels)."""
+        n = len(view_vertices)
+        if n == 0:
+            return []
+        V, T = len(view_vertices[0]), len(self.faces)
+        uv = np.concatenate([(vv[:, :2] - np.asarray(c, float)) * (size / float(sd)) + size / 2.0 - 0.5
+                             for vv, c, sd in zip(view_vertices, centres_m, sides_m)])
+        z = np.concatenate([vv[:, 2] + 100.0 for vv in view_vertices])
+        faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
+        face = rasterise_faces(uv, z, faces, size, size, face_layer=np.repeat(np.arange(n), T), n_layers=n)
+        return [self._finish(np.where(face[i] >= 0, face[i] - i * T, -1).astype(np.int32)) for i in range(n)]
+
     def view_vertices_batch(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
         """``(B, V, 3)`` view-frame vertices of ``B`` poses (see :meth:`view_vertices`)."""
         hinges = np.asarray(hinges, float)
