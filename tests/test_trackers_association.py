@@ -22,6 +22,7 @@ from mocap.trackers import (
     unregister_tracker,
 )
 from mocap.trackers.base import gated_assignment
+from scipy.spatial.distance import cdist
 from mocap.tracking import track_camera
 
 DT = 1.0 / 30.0
@@ -180,3 +181,41 @@ def test_registry_errors_name_the_fix():
         make_tracker("kalman", np.zeros((1, 2)), DT, 0)
     with pytest.raises(ValueError, match=r"\(M, 2\)"):
         make_tracker("kalman", np.zeros((3, 3)), DT, np.random.default_rng(0))
+
+
+def _numpy_unique_pairs(centre, gate_var, threshold, det):
+    """Reference of the compiled check: the (M, n) gate matrix, then the uniqueness test."""
+    if gate_var.shape[1] == 1:
+        inside = cdist(centre, det, "sqeuclidean") <= gate_var * threshold
+    else:
+        d2 = ((det[None, :, :] - centre[:, None, :]) ** 2 / gate_var[:, None, :]).sum(axis=2)
+        inside = d2 <= threshold
+    if (inside.sum(axis=1) > 1).any() or (inside.sum(axis=0) > 1).any():
+        return -1, None
+    idx = np.full(len(centre), -1)
+    rows, cols = inside.nonzero()
+    idx[rows] = cols
+    return int(inside.sum()), idx
+
+
+@pytest.mark.parametrize("axes", [1, 2])
+def test_compiled_gate_check_matches_numpy(axes):
+    from mocap.trackers.gating import unique_gated_pairs
+
+    rng = np.random.default_rng(7)
+    seen = {"unique": 0, "ambiguous": 0}
+    for trial in range(400):
+        M, n = rng.integers(0, 12, size=2)
+        centre = rng.uniform(0, 100, (M, 2))
+        centre[rng.random(M) < 0.1] = np.nan  # labels without a gate
+        det = rng.uniform(0, 100, (n, 2))
+        gate_var = rng.uniform(1, 60, (M, axes))
+        threshold = 13.8
+        idx = np.empty(M, dtype=np.intp)
+        K = unique_gated_pairs(centre, gate_var, gate_var[:, :1] * threshold, threshold, det, idx)
+        K_ref, idx_ref = _numpy_unique_pairs(centre, gate_var, threshold, det)
+        assert K == K_ref, trial
+        if K >= 0:
+            np.testing.assert_array_equal(idx, idx_ref)
+        seen["unique" if K >= 0 else "ambiguous"] += 1
+    assert min(seen.values()) > 50  # both outcomes exercised

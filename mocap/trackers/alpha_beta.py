@@ -64,6 +64,8 @@ class AlphaBetaTracker(Tracker2D):
         (see :class:`~mocap.trackers.base.Tracker2D`).
     """
 
+    _sets_own_gate = True  # circular gates straight from the radius (_set_radius)
+
     def __init__(
         self,
         initial_xy: np.ndarray,
@@ -91,68 +93,67 @@ class AlphaBetaTracker(Tracker2D):
         self.speed_gain = float(speed_gain)
         self.residual_smoothing = float(residual_smoothing)
         self.initial_residual_px = float(initial_residual_px)
-        M = self.n_markers
-        # State (M, 4): smoothed position x_s (px) and velocity v_s (px/s) per marker,
-        # [x, y, vx, vy]; the prediction is one small matrix product.
-        self._s = np.zeros((M, 4))
-        self._s[:, :2] = np.asarray(initial_xy, dtype=np.float64)
-        self._FT = np.eye(4)
-        self._FT[2, 0] = self._FT[3, 1] = self.dt  # x_p = x_s + dt v_s, v_p = v_s
-        self.res2 = np.full(M, self.initial_residual_px**2)  # (M,) running mean squared residual norm, px**2
-        self.radius = np.full(M, self.base_radius_px)  # (M,) search radius, px
-        self._svar = (self.radius * self.radius / self.gate_threshold)[:, None]
-        self._set_info()
+        # State, kept as two (M, 2) arrays because every frame touches both whole:
+        # position x (px; the prior after predict, the posterior after update) and the
+        # displacement per frame d = v dt (px/frame), so predict is a single addition.
+        # Written for few array passes: at 30 markers each numpy call costs about as
+        # much as the arithmetic, and this filter's budget is a few dozen calls a frame.
+        self._x = np.array(initial_xy, dtype=np.float64)
+        self._d = np.zeros_like(self._x)
+        self.res2 = np.full(self.n_markers, self.initial_residual_px**2)  # (M,) running mean squared residual norm, px**2
+        self._res_radius = self._radius_from_residuals()  # (M,) px, base + residual term
+        self.radius = self._res_radius.copy()  # (M,) search radius, px
+        self._set_radius(self.radius)
 
     @property
     def x(self) -> np.ndarray:
-        """(M, 2) float: smoothed position ``x_s`` in pixels."""
-        return self._s[:, :2]
+        """(M, 2) float: position in pixels (smoothed ``x_s`` after an update)."""
+        return self._x
 
     @property
     def v(self) -> np.ndarray:
         """(M, 2) float: smoothed velocity ``v_s`` in px/s."""
-        return self._s[:, 2:]
+        return self._d / self.dt
 
-    def _predict(self) -> None:
-        self._s = s = self._s @ self._FT  # x_p = x_s + dt v_s, v_p = v_s
-        self._centre = s[:, :2].copy()
-        # radius = base + residual_gain * rms(r) + speed_gain * |v| dt, times the frames
-        # since the last detection (plus this one) while coasting.
-        r = np.hypot(s[:, 2], s[:, 3])
-        r *= self.speed_gain * self.dt
-        r += self._res_radius
-        if self._any_coasting:
-            r *= self._coast + 1
-        self.radius = r
-        # A circle of radius r is the Mahalanobis gate d2 <= g with variance r**2 / g.
-        var = r * r
-        var *= 1.0 / self.gate_threshold
-        self._svar = var[:, None]
-
-    @property
-    def _res_radius(self) -> np.ndarray:
+    def _radius_from_residuals(self) -> np.ndarray:
         """(M,) px: base radius plus the residual term of the search radius."""
         t = np.sqrt(self.res2)
         t *= self.residual_gain
         t += self.base_radius_px
         return t
 
+    def _predict(self) -> None:
+        d = self._d
+        # x_p = x_s + dt v_s, v_p = v_s; a new array, so it is also the search centre
+        self._x = self._centre = self._x + d
+        # radius = base + residual_gain * rms(r) + speed_gain * |v| dt, times the frames
+        # since the last detection (plus this one) while coasting.
+        r = np.hypot(d[:, 0], d[:, 1])
+        if self.speed_gain != 1.0:
+            r *= self.speed_gain
+        r += self._res_radius
+        if self._any_coasting:
+            r *= self._coast + 1
+        self.radius = r
+        self._set_radius(r)
+
     def _correct(self, z: np.ndarray, has: np.ndarray | None) -> None:
-        s = self._s
-        r = z - s[:, :2]  # (1) residual, px
-        if has is not None:
-            r[~has] = 0.0  # no measurement: x_s = x_p, v_s = v_p
-        if self.alpha == 1.0:
-            s[:, :2] += r  # (2) with alpha = 1
+        x = self._x
+        r = z - x  # (1) residual, px
+        if has is None and self.alpha == 1.0:
+            self._x = z  # (2) with alpha = 1: x_s = x_m (z is a fresh array of this frame)
         else:
-            s[:, :2] += self.alpha * r  # (2)
+            if has is not None:
+                r[~has] = 0.0  # no measurement: x_s = x_p, v_s = v_p
+            # (2); a new array: x is also this frame's search centre (x_pred)
+            self._x = x + (r if self.alpha == 1.0 else self.alpha * r)
         e2 = r * r
-        e2 = e2[:, 0] + e2[:, 1]
+        e2 = np.add(e2[:, 0], e2[:, 1])  # squared residual norm, px**2
         if self._any_coasting:
             # The residual built up over the coasted frames plus this one.
             r /= (self._coast + 1)[:, None]
-        r *= self.beta / self.dt
-        s[:, 2:] += r  # (3)
+        r *= self.beta  # (3) in displacement per frame: d_s = d_p + beta r
+        self._d += r
         sm = self.residual_smoothing
         if has is None:
             self.res2 *= 1.0 - sm
@@ -160,16 +161,18 @@ class AlphaBetaTracker(Tracker2D):
             self.res2 += e2
         else:
             self.res2 += np.where(has, sm * (e2 - self.res2), 0.0)
+        self._res_radius = self._radius_from_residuals()
 
     def _restart(self, mask: np.ndarray, xy: np.ndarray) -> None:
-        self._s[mask, :2] = xy[mask]
-        self._s[mask, 2:] = 0.0
+        self._x[mask] = xy[mask]
+        self._d[mask] = 0.0
         self.res2[mask] = self.initial_residual_px**2
+        self._res_radius = self._radius_from_residuals()
 
     def _drop_velocity(self, mask: np.ndarray) -> None:
-        self._s[mask, 2:] = 0.0
+        self._d[mask] = 0.0
 
     @property
     def x_est(self) -> np.ndarray:
         """(M, 2) float: smoothed position ``x_s`` in pixels."""
-        return self._s[:, :2]
+        return self._x

@@ -69,6 +69,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
+from mocap.trackers.gating import unique_gated_pairs
+
 #: Status codes, identical to :class:`mocap.types.Tracks2D`.
 LOST: int = 0
 TRACKED: int = 1
@@ -141,6 +143,9 @@ class Tracker2D:
 
     #: Registry name, e.g. ``"kalman"``.
     name: ClassVar[str] = ""
+    #: True for trackers whose ``_predict`` sets the gates itself with
+    #: :meth:`_set_radius` (then ``predict`` skips :meth:`_set_info`).
+    _sets_own_gate: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -192,6 +197,7 @@ class Tracker2D:
         # (M, 2) px set by associate of trackers that let a label without a detection of
         # its own follow a blob it shares with another label (merged markers), else None.
         self._shared_z: np.ndarray | None = None
+        self._n_assigned = 0  # labels given a detection by the last association
         self._set_info()
 
     # ---------------------------------------------------------------- hooks
@@ -264,10 +270,21 @@ class Tracker2D:
         self._gvar = gvar
         self._thr = gvar * self.gate_threshold
 
+    def _set_radius(self, radius: np.ndarray) -> None:
+        """Circular gates straight from radii ``(M,)`` px (for trackers that think in
+        radii, e.g. alpha-beta): clipped to [min_gate_px, max_gate_px]; sets ``_svar``,
+        ``_gvar`` and ``_thr`` as :meth:`_set_info` would from the equivalent variance."""
+        r = np.maximum(radius, self.min_gate_px)
+        np.minimum(r, self.max_gate_px, out=r)
+        r *= r
+        self._thr = r[:, None]
+        self._gvar = self._svar = self._thr * (1.0 / self.gate_threshold)
+
     def predict(self) -> None:
         """Advance every label to the next frame (prior state and search area)."""
         self._predict()
-        self._set_info()
+        if not self._sets_own_gate:
+            self._set_info()
         self._contested = None
         self._shared_z = None
 
@@ -308,28 +325,24 @@ class Tracker2D:
         return self._associate(det)
 
     def _associate(self, det: np.ndarray) -> np.ndarray:
-        n = len(det)
+        # Common case first, compiled: the gated pairs form a partial permutation (each
+        # label at most one in-gate detection and vice versa); then they are the
+        # assignment, whatever the costs, and the Hungarian method is not needed.
+        idx = np.empty(self.n_markers, dtype=np.intp)
+        K = unique_gated_pairs(self._centre, self._gvar, self._thr, self.gate_threshold, det, idx)
+        if K >= 0:
+            self._contested = None
+            self._n_assigned = K
+            return idx
         if self._gvar.shape[1] == 1:
             # Circular gates: compare plain squared distances with each label's squared
-            # radius; Mahalanobis distances are only needed if the Hungarian method runs.
-            e2 = cdist(self._centre, det, "sqeuclidean")  # (M, n) px**2, one C loop
-            inside = e2 <= self._thr  # NaN centres compare False
+            # radius (the same test as the compiled check).
+            d2 = cdist(self._centre, det, "sqeuclidean")  # (M, n) px**2, one C loop
+            inside = d2 <= self._thr  # NaN centres compare False
+            d2 /= self._gvar
         else:
-            e2 = None
             d2 = _mahalanobis_sq(self._centre, self._gvar, det)
             inside = d2 <= self.gate_threshold
-        # Fast check that the gated pairs form a partial permutation (each label at most
-        # one in-gate detection and vice versa): then they are the assignment, whatever
-        # the costs, and the Hungarian method is not needed.
-        flat = np.flatnonzero(inside)  # row-major: rows ascending
-        rows, cols = np.divmod(flat, n)
-        if len(flat) <= 1 or (np.bincount(rows).max() <= 1 and np.bincount(cols).max() <= 1):
-            self._contested = None
-            idx = np.full(self.n_markers, -1, dtype=np.intp)
-            idx[rows] = cols
-            return idx
-        if e2 is not None:
-            d2 = e2 / self._gvar
         per_label = inside.sum(axis=1)
         per_detection = inside.sum(axis=0)
         idx = self._assign_ambiguous(d2, inside, per_label > 0)
@@ -337,6 +350,7 @@ class Tracker2D:
         # lay in several gates (markers crossing, merged blobs): trackers may trust such
         # a measurement less.
         self._contested = (per_label > 1) | ((idx >= 0) & (per_detection[idx] > 1))
+        self._n_assigned = int(np.count_nonzero(idx >= 0))
         return idx
 
     def _assign_ambiguous(self, d2: np.ndarray, inside: np.ndarray, has_candidate: np.ndarray) -> np.ndarray:
@@ -362,7 +376,7 @@ class Tracker2D:
         z : (M, 2) float
             Each label's associated detection in pixels, NaN rows for labels without one.
         """
-        z = np.asarray(z, dtype=np.float64)
+        z = np.array(z, dtype=np.float64)  # a copy: a tracker may keep it as its state
         if z.shape != (self.n_markers, 2):
             raise ValueError(f"z must have shape ({self.n_markers}, 2) (one row per label, NaN for none), got {z.shape}")
         has = z[:, 0] == z[:, 0]  # not NaN
@@ -427,7 +441,7 @@ class Tracker2D:
             return idx
         idx = self._associate(det)
         z = det[idx]
-        if self.n_markers and idx.min() < 0:
+        if self._n_assigned < self.n_markers:
             missing = idx < 0
             z[missing] = np.nan
             self._update(z, ~missing)
