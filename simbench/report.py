@@ -31,8 +31,12 @@ def _table(metrics: dict[str, float]) -> str:
 
 
 def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float], timings: dict[str, float],
-                     extra_sections: list[str] | None = None) -> Path:
-    """Write ``report.md`` and its PNG plots into ``out``."""
+                     extra_sections: list[str] | None = None, calibration=None) -> Path:
+    """Write ``report.md`` and its PNG plots into ``out``.
+
+    ``calibration`` is the one the pipeline used (default: the exact one): reprojection
+    residuals are what the pipeline itself would see, so they use its calibration.
+    """
     figs = out / "plots"
     figs.mkdir(exist_ok=True)
     parts = [f"# simbench run: {scenario.name}", "", scenario.description or "", "",
@@ -50,7 +54,7 @@ def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float]
         worst = np.nanmax(np.where(np.isfinite(err), err, -1), axis=0)
         order = np.argsort(-worst)[:5]
         parts += ["Worst markers (max error, mm): " + ", ".join(f"{gt.marker_names[i]} {worst[i]:.2f}" for i in order), ""]
-        res = reprojection_residuals_by_camera(capture, gt.calibration())
+        res = reprojection_residuals_by_camera(capture, calibration if calibration is not None else gt.calibration())
         plots.reprojection_residuals(res, figs / "reprojection.png")
         parts += ["## Reprojection residuals per camera", "", "![reprojection](plots/reprojection.png)", ""]
         fit = capture.skeleton

@@ -171,7 +171,8 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
             from simbench.report import write_run_report
 
-            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report)
+            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
+                             calibration=calibration)
     except BaseException:
         if ctx is not None:
             ctx.__exit__(RuntimeError, None, None)
