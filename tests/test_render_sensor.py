@@ -105,6 +105,31 @@ def test_fast_sensor_noise_has_the_shot_and_read_noise_of_the_model():
     assert not np.array_equal(a, fast.frame(rad, np.random.default_rng(8), None, 0.0))
 
 
+def test_fast_sensor_noise_is_independent_over_time_and_between_neighbours():
+    """The fast path's noise is a window of a pre-drawn table at a per-frame offset: over
+    many frames of a flat patch each pixel's temporal variance is the model's, and
+    neighbouring pixels, channels and consecutive frames are uncorrelated."""
+    cfg = NOISE_CFG
+    e = 400.0
+    c = cfg.gain * 255.0 / cfg.full_well_e
+    sensor = Sensor(cfg, 30.0, noise_rng=np.random.default_rng(11))
+    rad = np.full((48, 64, 4), e / (cfg.electrons_per_unit * cfg.exposure_ms * 1e-3), np.float32)
+    frames = np.stack([sensor.frame(rad, np.random.default_rng([12, k]), None, 0.0) for k in range(64)]).astype(float)
+    temporal_var = frames.var(axis=0, ddof=1)  # (H, W, 3): per pixel and channel over the 64 frames
+    expected = (e + cfg.read_noise_e**2) * c * c + 1.0 / 12.0
+    np.testing.assert_allclose(temporal_var.mean(), expected, rtol=0.03)
+    assert np.all(np.abs(np.log(temporal_var / expected)) < 1.2)  # no pixel frozen or doubled
+    d = frames - frames.mean(axis=0)
+    pairs = {"right": (d[:, :, 1:], d[:, :, :-1]), "down": (d[:, 1:], d[:, :-1]),
+             "channel": (d[..., 0], d[..., 1]), "next frame": (d[1:], d[:-1])}
+    for name, (a, b) in pairs.items():
+        r = np.corrcoef(a.ravel(), b.ravel())[0, 1]
+        assert abs(r) < 0.02, (name, r)
+    # Same generators, same frames (the table comes from noise_rng, the offset from the frame's rng).
+    again = Sensor(cfg, 30.0, noise_rng=np.random.default_rng(11))
+    assert np.array_equal(again.frame(rad, np.random.default_rng([12, 5]), None, 0.0), frames[5])
+
+
 # ---------------------------------------------------------------- GL passes
 @pytest.fixture(scope="module")
 def gl_pipeline():
