@@ -136,11 +136,12 @@ class ShirtPipelineParams:
         Levenberg-Marquardt iterations of step 4 and of the 6-DoF fit (at most).
     ik_rel_tol : float
         Both stop earlier when an iteration lowers the energy by less than this fraction.
-    poor_fit, recovery_passes, recovery_motion_scale : float, int, float
+    poor_fit, recovery_passes, recovery_motion_scale, recovery_blend_scale : float, int, float, float
         Full method: when step 4's centroid RMS exceeds ``poor_fit`` shirt sizes, up to
         ``recovery_passes`` more split-and-solve passes run with the motion prior's
-        spread times ``recovery_motion_scale`` (an addition: the previous pose is then
-        likely wrong and would hold the estimate near it).
+        spread times ``recovery_motion_scale`` and the blend prior's times
+        ``recovery_blend_scale`` (an addition: the previous pose is then likely wrong and
+        would hold the estimate near it).
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
@@ -189,6 +190,7 @@ class ShirtPipelineParams:
     poor_fit: float = 0.12
     recovery_passes: int = 3
     recovery_motion_scale: float = 4.0
+    recovery_blend_scale: float = 1.0
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
@@ -455,12 +457,13 @@ class ShirtTracker:
                 if len(cons2):
                     res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
                     cons = cons2
-            if p.pose_prior and self.q_prev is not None and p.recovery_passes and \
-                    res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px)):
+            if p.pose_prior and p.recovery_passes and res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px)):
                 # the centroids are far from the pose: the previous pose (which the motion prior
                 # holds on to) is probably wrong, e.g. while the tracker is still locking on
                 # from a far-off first blend; loosen that prior and split and solve again
-                loose = [priors[0], (self.q_prev, self.priors.motion_std * p.recovery_motion_scale)]
+                loose = [(q_b, self.priors.blend_std * p.recovery_blend_scale)]
+                if self.q_prev is not None:
+                    loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
                 for _ in range(p.recovery_passes):
                     cons2 = self.reassign(res.q, est.cameras, lin)
                     if not len(cons2):
