@@ -22,13 +22,13 @@ configuration ``q`` (:data:`UPPER_NQ` = 18, tangent size :data:`UPPER_NV` = 17) 
 
 Rasteriser
 ----------
-:func:`rasterise_faces` is a small vectorised z-buffer: triangles are back-face culled,
-expanded into the pixel centres of their bounding boxes, tested with edge functions
-and resolved per pixel with ``numpy.minimum.at`` on depth.  It is hand-written rather
-than borrowed from OpenGL because the pipeline must run without a GL context (the
-``mocap`` side never imports the renderer), and at the tiny resolutions used here
-(40-128 px) a numpy pass over a few thousand triangles costs about a millisecond,
-less than a GL round trip; ``cv2.fillPoly`` has no depth test.
+:func:`rasterise_faces` is a small z-buffer: triangles are back-face culled and set up
+(edge functions, depth planes, boxes) with numpy, then a compiled (numba) loop tests
+the pixel centres of every box and keeps the nearest triangle per pixel.  It is
+hand-written rather than borrowed from OpenGL because the pipeline must run without a
+GL context (the ``mocap`` side never imports the renderer), and at the tiny
+resolutions used here (40-128 px) a pass over a few thousand triangles costs about a
+millisecond, less than a GL round trip; ``cv2.fillPoly`` has no depth test.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 import pinocchio as pin
 
@@ -354,9 +355,10 @@ def rasterise_faces(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, width:
     Notes
     -----
     Triangles are grouped by the pixel centres their bounding boxes span: up to 2x2
-    and up to 4x4 (nearly all of them at the pipeline's resolutions) are tested
-    against a fixed grid with broadcasting, larger ones pixel by pixel.  Each triangle
-    carries its three edge functions and its depth plane as ``a x + b y + c``.
+    and up to 4x4 (nearly all of them at the pipeline's resolutions; edge functions in
+    float32), larger ones (float64); :func:`_zbuffer` draws the groups in that order.
+    Each triangle carries its three edge functions and its depth plane as
+    ``a x + b y + c``.
     """
     npix = height * width
     shape = (height, width) if face_layer is None else (n_layers, height, width)
@@ -405,49 +407,51 @@ def rasterise_faces(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, width:
     za = ((Z[:, 1] - Z[:, 0]) * (Y[:, 2] - Y[:, 0]) - (Z[:, 2] - Z[:, 0]) * (Y[:, 1] - Y[:, 0])) * w
     zb = ((X[:, 1] - X[:, 0]) * (Z[:, 2] - Z[:, 0]) - (X[:, 2] - X[:, 0]) * (Z[:, 1] - Z[:, 0])) * w
     zc = Z[:, 0] + za * (xmin - X[:, 0]) + zb * (ymin - Y[:, 0])
-    pix_parts, z_parts, t_parts = [], [], []
-    tier = np.where((nx <= 2) & (ny <= 2), 2, np.where((nx <= 4) & (ny <= 4), 4, 0))
-    for g in (2, 4):
-        sm = np.flatnonzero(tier == g)
-        if not sm.size:
-            continue
-        gx = np.tile(np.arange(g, dtype=np.float32), g)[None, :]
-        gy = np.repeat(np.arange(g, dtype=np.float32), g)[None, :]
-        inside = (gx < nx[sm, None]) & (gy < ny[sm, None])
-        for e in range(3):
-            inside &= (ec[sm, e, None].astype(np.float32) + ea[sm, e, None].astype(np.float32) * gx
-                       + eb[sm, e, None].astype(np.float32) * gy) >= -1e-6
-        r, c = np.nonzero(inside)
-        t = sm[r]
-        dx, dy = gx[0, c], gy[0, c]
-        pix_parts.append(base_pix[t] + ((ymin[t] + dy) * width + xmin[t] + dx).astype(np.int64))
-        z_parts.append(zc[t] + za[t] * dx + zb[t] * dy)
-        t_parts.append(t)
-    big = np.flatnonzero(tier == 0)
-    if big.size:
-        nb = (nx[big] * ny[big]).astype(np.int64)
-        t = np.repeat(big, nb)
-        k = np.arange(int(nb.sum()), dtype=np.int64) - np.repeat(np.cumsum(nb) - nb, nb)
-        nxr = nx[t].astype(np.int64)
-        dx = (k % nxr).astype(np.float64)
-        dy = (k // nxr).astype(np.float64)
-        inside = np.ones(len(t), bool)
-        for e in range(3):
-            inside &= ec[t, e] + ea[t, e] * dx + eb[t, e] * dy >= -1e-6
-        t, dx, dy = t[inside], dx[inside], dy[inside]
-        pix_parts.append(base_pix[t] + ((ymin[t] + dy) * width + xmin[t] + dx).astype(np.int64))
-        z_parts.append(zc[t] + za[t] * dx + zb[t] * dy)
-        t_parts.append(t)
-    pix = np.concatenate(pix_parts)
-    if pix.size == 0:
-        return out.reshape(shape)
-    z = np.concatenate(z_parts)
-    t = np.concatenate(t_parts)
-    zbuf = np.full(len(out), np.inf)
-    np.minimum.at(zbuf, pix, z)
-    win = z <= zbuf[pix]
-    out[pix[win]] = idx[t[win]]
+    tier = np.where((nx <= 2) & (ny <= 2), 2, np.where((nx <= 4) & (ny <= 4), 4, 0)).astype(np.int64)
+    _zbuffer(tier, nx.astype(np.int64), ny.astype(np.int64), xmin.astype(np.int64), ymin.astype(np.int64), base_pix,
+             idx.astype(np.int32), ec.astype(np.float32), ea.astype(np.float32), eb.astype(np.float32), ec, ea, eb, zc, za, zb,
+             width, out)
     return out.reshape(shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _zbuffer(tier, nx, ny, xmin, ymin, base_pix, face, ec32, ea32, eb32, ec, ea, eb, zc, za, zb, width, out):  # pragma: no cover
+    """The z-buffer of :func:`rasterise_faces`, compiled: a loop over triangles and the pixel centres of their boxes.
+
+    Why compiled: the vectorised form spends most of its time building and filtering
+    candidate (triangle, pixel) arrays, a few thousand tiny triangles per render, many
+    renders per frame.  The same arithmetic as that form (edge functions of boxes up to
+    4 x 4 in float32, larger ones in float64; depth planes in float64) and the same order
+    (boxes up to 2 x 2, then up to 4 x 4, then larger; each row by row), so the same
+    triangle wins every pixel, ties included (the last one drawn at the least depth).
+    """
+    zbuf = np.full(out.size, np.inf)
+    tol32 = np.float32(-1e-6)
+    for g in (2, 4, 0):
+        for f in range(len(tier)):
+            if tier[f] != g:
+                continue
+            w = nx[f]
+            h = ny[f]
+            for cy in range(h):
+                for cx in range(w):
+                    if g:
+                        fx = np.float32(cx)
+                        fy = np.float32(cy)
+                        if not (ec32[f, 0] + ea32[f, 0] * fx + eb32[f, 0] * fy >= tol32 and ec32[f, 1] + ea32[f, 1] * fx + eb32[f, 1] * fy >= tol32
+                                and ec32[f, 2] + ea32[f, 2] * fx + eb32[f, 2] * fy >= tol32):
+                            continue
+                    else:
+                        dx = np.float64(cx)
+                        dy = np.float64(cy)
+                        if not (ec[f, 0] + ea[f, 0] * dx + eb[f, 0] * dy >= -1e-6 and ec[f, 1] + ea[f, 1] * dx + eb[f, 1] * dy >= -1e-6
+                                and ec[f, 2] + ea[f, 2] * dx + eb[f, 2] * dy >= -1e-6):
+                            continue
+                    z = zc[f] + za[f] * np.float64(cx) + zb[f] * np.float64(cy)
+                    pix = base_pix[f] + (ymin[f] + cy) * width + xmin[f] + cx
+                    if z <= zbuf[pix]:
+                        zbuf[pix] = z
+                        out[pix] = face[f]
 
 
 def look_at_view(forward: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
