@@ -161,6 +161,28 @@ class GeometryBuffers:
     uv: np.ndarray | None = None
 
 
+Rect = tuple[int, int, int, int]  # x0, y0, x1, y1: pixel columns x0..x1-1, rows y0..y1-1
+
+
+def _union(a: Rect | None, b: Rect) -> Rect:
+    return b if a is None else (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+
+
+@dataclass
+class _View:
+    """The cached static set of one view and light state, and this view's working target.
+
+    static : the static set alone, drawn once
+    work : the static set with the moving geometry of the last render drawn over it
+    dirty : per attachment (radiance, ids, camera depth, depth buffer), the rectangle
+        where ``work`` may differ from ``static`` (None: nowhere)
+    """
+
+    static: "_Target"
+    work: "_Target"
+    dirty: list
+
+
 @dataclass
 class _Target:
     """A render target: framebuffer, radiance texture, id / camera-z / depth renderbuffers."""
@@ -322,7 +344,8 @@ class Rasterizer:
         self._fbos: dict[tuple[int, int], _Target] = {}
         self._static: _Mesh | None = None
         self._dynamic: _Mesh | None = None
-        self._static_cache: dict[tuple, _Target] = {}
+        self._static_cache: dict[tuple, _View] = {}
+        self._dynamic_positions: np.ndarray | None = None
 
     def _framebuffer(self, width: int, height: int) -> "_Target":
         """The working framebuffer of this size (made once)."""
@@ -364,26 +387,20 @@ class Rasterizer:
         gl.glDeleteTextures(1, [target.radiance])
         gl.glDeleteRenderbuffers(3, [target.ids, target.zcam, target.depth])
 
-    def radiance_texture(self, width: int, height: int) -> int:
-        """GL name of the ``RGBA32F`` radiance texture that ``render`` draws at this size.
-
-        Row 0 of the texture is image row 0 (the top row). Its content is that of the
-        last ``render`` call at this size.
-        """
-        return self._framebuffer(width, height).radiance
-
     # ---------------------------------------------------------------- geometry
     def set_static(self, buf: GeometryBuffers) -> None:
         self.context.make_current()
         self._static = _Mesh(buf, dynamic=False)
-        for target in self._static_cache.values():
-            self._delete_target(target)
+        for view in self._static_cache.values():
+            self._delete_target(view.static)
+            self._delete_target(view.work)
         self._static_cache.clear()
 
     def set_dynamic(self, buf: GeometryBuffers) -> None:
         """Topology and per-vertex attributes of the moving geometry (set once)."""
         self.context.make_current()
         self._dynamic = _Mesh(buf, dynamic=True)
+        self._dynamic_positions = np.array(buf.positions, np.float32)
 
     def set_texture(self, image: np.ndarray) -> None:
         """The one texture (linear albedo 0..1, ``(H, W)`` or ``(H, W, 3)``), bilinear with mipmaps."""
@@ -411,6 +428,8 @@ class Rasterizer:
         if self._dynamic is None:
             raise RuntimeError("call set_dynamic before update_dynamic")
         self._dynamic.update(positions, normals)
+        # Kept to bound the image region the moving geometry covers (see _dynamic_rect).
+        self._dynamic_positions = np.array(positions, np.float32)
 
     # ---------------------------------------------------------------- render
     def _draw(self, fbo: int, width: int, height: int, meshes, clear: bool, uniforms: tuple,
@@ -451,20 +470,54 @@ class Rasterizer:
             if mesh is not None:
                 mesh.draw()
 
-    def _copy_framebuffer(self, src: "_Target", dst: "_Target", attachments: tuple[bool, bool, bool]) -> None:
-        """Copy the flagged colour attachments and the depth buffer (the cached static set).
+    def _restore(self, view: _View, attachments: tuple[bool, bool, bool]) -> None:
+        """Copy the static set back over the dirty rectangles of the flagged colour
+        attachments and of the depth buffer of the view's working target.
 
-        ``glCopyImageSubData`` is a plain memory copy on llvmpipe; a blit per attachment
-        draws a textured quad each and cost ~4x as much here.
+        Only where the last renders drew moving geometry: the body covers a small part of
+        the image, and a whole-frame copy of radiance, ids and depth cost ~1 ms per frame
+        here. ``glCopyImageSubData`` is a plain memory copy on llvmpipe; a blit per
+        attachment draws a textured quad each and cost ~4x as much.
         """
-        w, h = src.width, src.height
-        pairs = [(src.radiance, dst.radiance, gl.GL_TEXTURE_2D), (src.ids, dst.ids, gl.GL_RENDERBUFFER),
-                 (src.zcam, dst.zcam, gl.GL_RENDERBUFFER)]
-        for (a, b, target), on in zip(pairs, attachments):
-            if on:
-                gl.glCopyImageSubData(a, target, 0, 0, 0, 0, b, target, 0, 0, 0, 0, w, h, 1)
-        gl.glCopyImageSubData(src.depth, gl.GL_RENDERBUFFER, 0, 0, 0, 0, dst.depth, gl.GL_RENDERBUFFER, 0, 0, 0, 0,
-                              w, h, 1)
+        src, dst = view.static, view.work
+        names = [(src.radiance, dst.radiance, gl.GL_TEXTURE_2D), (src.ids, dst.ids, gl.GL_RENDERBUFFER),
+                 (src.zcam, dst.zcam, gl.GL_RENDERBUFFER), (src.depth, dst.depth, gl.GL_RENDERBUFFER)]
+        for k, ((a, b, target), on) in enumerate(zip(names, attachments + (True,))):
+            rect = view.dirty[k]
+            if on and rect is not None:
+                x0, y0, x1, y1 = rect
+                gl.glCopyImageSubData(a, target, 0, x0, y0, 0, b, target, 0, x0, y0, 0, x1 - x0, y1 - y0, 1)
+                view.dirty[k] = None
+
+    def _dynamic_rect(self, P: np.ndarray, W2C: np.ndarray, width: int, height: int, znear: float) -> Rect | None:
+        """Pixel rectangle that contains every fragment of the moving geometry (None: no
+        geometry), from its vertices' projection with ``P @ W2C`` (4, 4).
+
+        A triangle's pixels lie within its vertices' bounding box when all three are in
+        front of the near plane; a vertex nearer than that (a triangle may then be clipped
+        into any shape) makes it the whole image. Two pixels of margin cover pixel-centre
+        conventions and rounding.
+        """
+        pos = self._dynamic_positions
+        if pos is None or len(pos) == 0:
+            return None
+        M = (P @ W2C).astype(np.float32)
+        clip = pos @ M[:, :3].T + M[:, 3]
+        w = clip[:, 3]
+        if not np.all(w > znear):
+            return (0, 0, width, height)
+        x = clip[:, 0] / w
+        y = clip[:, 1] / w
+        # NDC -> window pixels (y is not flipped, see projection_from_K).
+        x0 = int(np.floor((x.min() + 1) * 0.5 * width)) - 2
+        x1 = int(np.ceil((x.max() + 1) * 0.5 * width)) + 2
+        y0 = int(np.floor((y.min() + 1) * 0.5 * height)) - 2
+        y1 = int(np.ceil((y.max() + 1) * 0.5 * height)) + 2
+        x0, y0 = max(x0, 0), max(y0, 0)
+        x1, y1 = min(x1, width), min(y1, height)
+        if x1 <= x0 or y1 <= y0:
+            return None
+        return (x0, y0, x1, y1)
 
     def render(
         self,
@@ -491,8 +544,8 @@ class Rasterizer:
         (0 where nothing was drawn), ``radiance_rgba`` the read-back (H, W, 4) float32
         as it is (alpha 1; saves a copy when the caller drops it), ``radiance_texture`` the GL name (int) of the
         ``RGBA32F`` radiance texture, drawn but not read back (for the GL sensor pass,
-        :mod:`simbench.render.gl_sensor`). Only the requested images are drawn: the
-        others of this size hold stale content afterwards.
+        :mod:`simbench.render.gl_sensor`; its content is valid until the next ``render``
+        call). Only the requested images are drawn.
 
         ``buffers`` optionally maps output names (``radiance_rgba`` — also used for
         ``radiance`` —, ``radiance_red`` (H, W, 1), ``ids``, ``depth``) to C-contiguous
@@ -500,9 +553,11 @@ class Rasterizer:
         overwritten by the next call that uses them).
 
         With ``cache_static`` the static set (floor, walls, clutter) is drawn once per
-        view and light state and copied in before the moving geometry is drawn: it
-        covers most pixels, and shading it is most of a frame's cost. This is exact
-        because the renderer casts no shadows (the body does not change how the set is lit).
+        view and light state (up to 16 of them kept) and copied in before the moving
+        geometry is drawn: it covers most pixels, and shading it is most of a frame's
+        cost. Each view keeps a working copy, into which only the rectangles the moving
+        geometry covered in earlier renders are copied back. This is exact because the
+        renderer casts no shadows (the body does not change how the set is lit).
         """
         if len(lights) > MAX_LIGHTS:
             raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
@@ -522,22 +577,32 @@ class Rasterizer:
         uniforms = (W2C.astype(np.float32), P.astype(np.float32), kinds, vecs, rgbs, len(lights),
                     np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
                     np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
-        target = self._framebuffer(width, height)
         want_rad = any(o in outputs for o in ("radiance", "radiance_rgba", "radiance_red", "radiance_texture"))
         attachments = (want_rad, "ids" in outputs, "depth" in outputs)
         if cache_static and self._static is not None:
             key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
-            cached = self._static_cache.get(key)
-            if cached is None:
+            view = self._static_cache.get(key)
+            if view is None:
                 if len(self._static_cache) >= 16:  # bounded: drop the oldest view/light state
-                    old_key = next(iter(self._static_cache))
-                    self._delete_target(self._static_cache.pop(old_key))
-                cached = self._new_framebuffer(width, height)
-                self._draw(cached.fbo, width, height, (self._static,), True, uniforms)
-                self._static_cache[key] = cached
-            self._copy_framebuffer(cached, target, attachments)
-            self._draw(target.fbo, width, height, (self._dynamic,), False, uniforms, attachments)
+                    old = self._static_cache.pop(next(iter(self._static_cache)))
+                    self._delete_target(old.static)
+                    self._delete_target(old.work)
+                static = self._new_framebuffer(width, height)
+                self._draw(static.fbo, width, height, (self._static,), True, uniforms)
+                # A working target of its own per view, so that only what the moving geometry
+                # drew needs restoring: the first restore copies the whole image.
+                view = _View(static, self._new_framebuffer(width, height), [(0, 0, width, height)] * 4)
+                self._static_cache[key] = view
+            self._restore(view, attachments)
+            self._draw(view.work.fbo, width, height, (self._dynamic,), False, uniforms, attachments)
+            rect = self._dynamic_rect(P, W2C, width, height, znear)
+            if rect is not None:
+                for k, on in enumerate(attachments + (True,)):
+                    if on:
+                        view.dirty[k] = _union(view.dirty[k], rect)
+            target = view.work
         else:
+            target = self._framebuffer(width, height)
             self._draw(target.fbo, width, height, (self._static, self._dynamic), True, uniforms, attachments)
         out: dict = {}
         H, W = height, width
