@@ -365,53 +365,78 @@ def rasterise_faces(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, width:
     out = np.full(npix * (1 if face_layer is None else n_layers), -1, np.int32)
     if len(faces) == 0:
         return out.reshape(shape)
-    uv = np.asarray(uv, np.float64)
-    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
-    x0, x1, x2 = uv[f0, 0], uv[f1, 0], uv[f2, 0]
-    y0, y1, y2 = uv[f0, 1], uv[f1, 1], uv[f2, 1]
-    d = np.asarray(depth, np.float64)
-    z0, z1, z2 = d[f0], d[f1], d[f2]
-    area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
-    # seen from the front, an outward-facing counter-clockwise triangle has negative
-    # signed area in image coordinates (y points down)
-    keep = area < -1e-9 if cull_back else np.abs(area) > 1e-9
-    keep &= np.minimum(np.minimum(z0, z1), z2) > _NEAR_M
-    xmin = np.ceil(np.minimum(np.minimum(x0, x1), x2))
-    xmax = np.floor(np.maximum(np.maximum(x0, x1), x2))
-    ymin = np.ceil(np.minimum(np.minimum(y0, y1), y2))
-    ymax = np.floor(np.maximum(np.maximum(y0, y1), y2))
-    keep &= (xmax >= 0) & (ymax >= 0) & (xmin <= width - 1) & (ymin <= height - 1) & (xmax >= xmin) & (ymax >= ymin)
-    idx = np.flatnonzero(keep)
-    if idx.size == 0:
-        return out.reshape(shape)
-    xmin, xmax = np.maximum(xmin[idx], 0), np.minimum(xmax[idx], width - 1)
-    ymin, ymax = np.maximum(ymin[idx], 0), np.minimum(ymax[idx], height - 1)
-    nx = xmax - xmin + 1
-    ny = ymax - ymin + 1
-    ok = nx * ny <= _MAX_BOX_PIXELS
-    if not ok.all():
-        idx, xmin, ymin, nx, ny = idx[ok], xmin[ok], ymin[ok], nx[ok], ny[ok]
-    X = np.stack([x0[idx], x1[idx], x2[idx]], axis=1)
-    Y = np.stack([y0[idx], y1[idx], y2[idx]], axis=1)
-    Z = np.stack([z0[idx], z1[idx], z2[idx]], axis=1)
-    area = area[idx]
-    base_pix = np.zeros(len(idx), np.int64) if face_layer is None else np.asarray(face_layer, np.int64)[idx] * npix
-    # edge function of edge (i -> j), positive inside: sign(area) * ((xj - xi)(y - yi) - (yj - yi)(x - xi))
-    s = np.sign(area)[:, None]
-    i0, i1 = np.array([1, 2, 0]), np.array([2, 0, 1])
-    ea = -(Y[:, i1] - Y[:, i0]) * s  # (n, 3) coefficient of x
-    eb = (X[:, i1] - X[:, i0]) * s  # coefficient of y
-    # edge functions and depth evaluated at each triangle's box corner (xmin, ymin)
-    ec = ea * (xmin[:, None] - X[:, i0]) + eb * (ymin[:, None] - Y[:, i0])
-    w = 1.0 / area
-    za = ((Z[:, 1] - Z[:, 0]) * (Y[:, 2] - Y[:, 0]) - (Z[:, 2] - Z[:, 0]) * (Y[:, 1] - Y[:, 0])) * w
-    zb = ((X[:, 1] - X[:, 0]) * (Z[:, 2] - Z[:, 0]) - (X[:, 2] - X[:, 0]) * (Z[:, 1] - Z[:, 0])) * w
-    zc = Z[:, 0] + za * (xmin - X[:, 0]) + zb * (ymin - Y[:, 0])
-    tier = np.where((nx <= 2) & (ny <= 2), 2, np.where((nx <= 4) & (ny <= 4), 4, 0)).astype(np.int64)
-    _zbuffer(tier, nx.astype(np.int64), ny.astype(np.int64), xmin.astype(np.int64), ymin.astype(np.int64), base_pix,
-             idx.astype(np.int32), ec.astype(np.float32), ea.astype(np.float32), eb.astype(np.float32), ec, ea, eb, zc, za, zb,
-             width, out)
+    base = np.zeros(len(faces), np.int64) if face_layer is None else np.asarray(face_layer, np.int64) * npix
+    _rasterise(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(depth, np.float64), np.ascontiguousarray(faces, np.int64),
+               int(width), int(height), bool(cull_back), base, out)
     return out.reshape(shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _rasterise(uv, depth, faces, width, height, cull_back, base, out):  # pragma: no cover
+    """Set-up of every triangle (as the vectorised form had it, operation for operation) and :func:`_zbuffer`."""
+    n = len(faces)
+    keep = np.zeros(n, np.bool_)
+    xmin = np.empty(n, np.int64)
+    ymin = np.empty(n, np.int64)
+    nx = np.empty(n, np.int64)
+    ny = np.empty(n, np.int64)
+    tier = np.empty(n, np.int64)
+    ec = np.empty((n, 3))
+    ea = np.empty((n, 3))
+    eb = np.empty((n, 3))
+    zc = np.empty(n)
+    za = np.empty(n)
+    zb = np.empty(n)
+    X = np.empty(3)
+    Y = np.empty(3)
+    Z = np.empty(3)
+    for f in range(n):
+        for j in range(3):
+            v = faces[f, j]
+            X[j] = uv[v, 0]
+            Y[j] = uv[v, 1]
+            Z[j] = depth[v]
+        area = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0])
+        # seen from the front, an outward-facing counter-clockwise triangle has negative
+        # signed area in image coordinates (y points down)
+        if cull_back:
+            if not area < -1e-9:
+                continue
+        elif not abs(area) > 1e-9:
+            continue
+        if not min(min(Z[0], Z[1]), Z[2]) > _NEAR_M:
+            continue
+        fxmin = np.ceil(min(min(X[0], X[1]), X[2]))
+        fxmax = np.floor(max(max(X[0], X[1]), X[2]))
+        fymin = np.ceil(min(min(Y[0], Y[1]), Y[2]))
+        fymax = np.floor(max(max(Y[0], Y[1]), Y[2]))
+        if not (fxmax >= 0 and fymax >= 0 and fxmin <= width - 1 and fymin <= height - 1 and fxmax >= fxmin and fymax >= fymin):
+            continue
+        fxmin, fxmax = max(fxmin, 0.0), min(fxmax, width - 1.0)
+        fymin, fymax = max(fymin, 0.0), min(fymax, height - 1.0)
+        fnx = fxmax - fxmin + 1
+        fny = fymax - fymin + 1
+        if not fnx * fny <= _MAX_BOX_PIXELS:
+            continue
+        keep[f] = True
+        xmin[f], ymin[f], nx[f], ny[f] = int(fxmin), int(fymin), int(fnx), int(fny)
+        tier[f] = 2 if (fnx <= 2 and fny <= 2) else (4 if (fnx <= 4 and fny <= 4) else 0)
+        # edge function of edge (i -> j), positive inside: sign(area) * ((xj - xi)(y - yi) - (yj - yi)(x - xi)),
+        # and the depth plane, both at the box corner (xmin, ymin)
+        sg = np.sign(area)
+        for e in range(3):
+            i0 = (e + 1) % 3
+            i1 = (e + 2) % 3
+            ea[f, e] = -(Y[i1] - Y[i0]) * sg
+            eb[f, e] = (X[i1] - X[i0]) * sg
+            ec[f, e] = ea[f, e] * (fxmin - X[i0]) + eb[f, e] * (fymin - Y[i0])
+        w = 1.0 / area
+        za[f] = ((Z[1] - Z[0]) * (Y[2] - Y[0]) - (Z[2] - Z[0]) * (Y[1] - Y[0])) * w
+        zb[f] = ((X[1] - X[0]) * (Z[2] - Z[0]) - (X[2] - X[0]) * (Z[1] - Z[0])) * w
+        zc[f] = Z[0] + za[f] * (fxmin - X[0]) + zb[f] * (fymin - Y[0])
+    sel = np.flatnonzero(keep)
+    _zbuffer(tier[sel], nx[sel], ny[sel], xmin[sel], ymin[sel], base[sel], sel.astype(np.int32), ec[sel].astype(np.float32),
+             ea[sel].astype(np.float32), eb[sel].astype(np.float32), ec[sel], ea[sel], eb[sel], zc[sel], za[sel], zb[sel], width, out)
 
 
 @numba.njit(cache=True, nogil=True)
