@@ -356,7 +356,8 @@ def rasterise_faces(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, width:
     -----
     Triangles are grouped by the pixel centres their bounding boxes span: up to 2x2
     and up to 4x4 (nearly all of them at the pipeline's resolutions; edge functions in
-    float32), larger ones (float64); :func:`_zbuffer` draws the groups in that order.
+    float32), larger ones (float64); the set-up and the z-buffer (:func:`_rasterise`,
+    :func:`_zbuffer`) are compiled, the groups drawn in that order.
     Each triangle carries its three edge functions and its depth plane as
     ``a x + b y + c``.
     """
