@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import trimesh
 
@@ -18,6 +19,23 @@ from simbench.render.rasterizer import GeometryBuffers
 
 MARKER_ALBEDO = np.array([0.85, 0.85, 0.85])
 MARKER_RETRO = 6.0     # retro-reflective gain (see the rasteriser's ring-light term)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _pose_groups(lp, ln, bounds, R, p, P, N):
+    """``P[v] = R[g] lp[v] + p[g]`` and ``N[v] = R[g] ln[v]`` for the vertices
+    ``bounds[g, 0] <= v < bounds[g, 1]`` of each group ``g``; all float32."""
+    for g in range(bounds.shape[0]):
+        r = R[g]
+        for v in range(bounds[g, 0], bounds[g, 1]):
+            x, y, z = lp[v, 0], lp[v, 1], lp[v, 2]
+            P[v, 0] = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z + p[g, 0]
+            P[v, 1] = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z + p[g, 1]
+            P[v, 2] = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z + p[g, 2]
+            x, y, z = ln[v, 0], ln[v, 1], ln[v, 2]
+            N[v, 0] = r[0, 0] * x + r[0, 1] * y + r[0, 2] * z
+            N[v, 1] = r[1, 0] * x + r[1, 1] * y + r[1, 2] * z
+            N[v, 2] = r[2, 0] * x + r[2, 1] * y + r[2, 2] * z
 
 
 def mesh_buffers(mesh: trimesh.Trimesh, face_albedo: np.ndarray, face_ids: np.ndarray, retro: float = 0.0) -> GeometryBuffers:
@@ -123,27 +141,45 @@ class MovingGeometry:
     buffers: GeometryBuffers
     group_slices: list[tuple[str, int, slice]]
 
+    def __post_init__(self) -> None:
+        kinds = [k for k, _, _ in self.group_slices]
+        self._bounds = np.array([[sl.start, sl.stop] for _, _, sl in self.group_slices], np.int64).reshape(-1, 2)
+        self._of_kind = {kind: (np.array([g for g, k in enumerate(kinds) if k == kind], np.int64),
+                                np.array([i for k, i, _ in self.group_slices if k == kind], np.int64))
+                         for kind in ("body", "marker", "prop")}
+        self._local = (np.ascontiguousarray(self.buffers.positions, np.float32),
+                       np.ascontiguousarray(self.buffers.normals, np.float32))
+
     def pose(self, body_pos: np.ndarray, body_rot: np.ndarray, marker_pos: np.ndarray,
              prop_T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World positions and normals ``(V, 3)`` float32 for one instant.
 
         body_pos (B, 3), body_rot (B, 3, 3), marker_pos (M, 3), prop_T (P, 4, 4).
+
+        Each group's rotation and translation are gathered in a few array operations and
+        applied in one compiled loop (a matrix product per group cost ~0.6 ms a frame
+        for ~60 groups, mostly call overhead); markers are translated only.
         """
-        lp, ln = self.buffers.positions, self.buffers.normals
+        G = len(self._bounds)
+        R = np.empty((G, 3, 3), np.float32)
+        p = np.empty((G, 3), np.float32)
+        g, i = self._of_kind["body"]
+        if len(g):
+            R[g] = np.asarray(body_rot)[i]
+            p[g] = np.asarray(body_pos)[i]
+        g, i = self._of_kind["marker"]
+        if len(g):
+            R[g] = np.eye(3, dtype=np.float32)
+            p[g] = np.asarray(marker_pos)[i]
+        g, i = self._of_kind["prop"]
+        if len(g):
+            T = np.asarray(prop_T)[i]
+            R[g] = T[:, :3, :3]
+            p[g] = T[:, :3, 3]
+        lp, ln = self._local
         P = np.empty_like(lp)
         N = np.empty_like(ln)
-        for kind, idx, sl in self.group_slices:
-            if kind == "body":
-                R, p = body_rot[idx], body_pos[idx]
-            elif kind == "marker":
-                P[sl] = lp[sl] + marker_pos[idx].astype(np.float32)
-                N[sl] = ln[sl]
-                continue
-            else:
-                R, p = prop_T[idx][:3, :3], prop_T[idx][:3, 3]
-            Rf = R.astype(np.float32)
-            P[sl] = lp[sl] @ Rf.T + p.astype(np.float32)
-            N[sl] = ln[sl] @ Rf.T
+        _pose_groups(lp, ln, self._bounds, R, p, P, N)
         return P, N
 
 
