@@ -32,6 +32,7 @@ __all__ = [
     "crop_view",
     "crop_image",
     "foreground_pixels",
+    "other_distance",
     "classify_gaussian",
     "best_reference",
     "distance_to_patches",
@@ -99,11 +100,20 @@ def _linear(work_rgb: np.ndarray) -> np.ndarray:
     return SRGB_TO_LINEAR[work_rgb]
 
 
-def _other_wins(x: np.ndarray, other: ColourModel | None, W: np.ndarray, score: np.ndarray) -> np.ndarray:
-    """Pixels ``(n, 3)`` where a not-shirt Gaussian is nearer than the best shirt colour's ``score``."""
+def other_distance(x: np.ndarray, other: ColourModel | None, W: np.ndarray) -> np.ndarray | None:
+    """Distance ``(n,)`` of pixels ``(n, 3)`` to the nearest not-shirt colour (None without those colours)."""
+    if other is None or len(x) == 0:
+        return None
+    return other.distances(x, W).min(axis=1)
+
+
+def _other_wins(x: np.ndarray, other: ColourModel | None, W: np.ndarray, score: np.ndarray,
+                other_min: np.ndarray | None = None) -> np.ndarray:
+    """Pixels ``(n, 3)`` where a not-shirt Gaussian is nearer than the best shirt colour's ``score``
+    (``other_min``: :func:`other_distance` of the pixels, when at hand)."""
     if other is None or len(x) == 0:
         return np.zeros(score.shape, bool)
-    return other.distances(x, W).min(axis=1) < score
+    return (other_distance(x, other, W) if other_min is None else other_min) < score
 
 
 def foreground_pixels(linear_rgb: np.ndarray, foreground: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -130,7 +140,8 @@ def _result(shape: tuple[int, int], idx: np.ndarray, best: np.ndarray, score: np
 
 def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
                       threshold: float = 3.0, distances: np.ndarray | None = None,
-                      other: ColourModel | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None) -> Classification:
+                      other: ColourModel | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
+                      other_min: np.ndarray | None = None) -> Classification:
     """Step 1: nearest Gaussian after white balance, thresholded (``T``), foreground only.
 
     Parameters
@@ -147,12 +158,14 @@ def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray,
         a pixel nearer to one of them than to every shirt colour stays unclassified.
     pixels : ((n,) int, (n, 3) float32), optional
         ``foreground_pixels(linear_rgb, foreground)`` when the caller has it.
+    other_min : (n,) float, optional
+        :func:`other_distance` of those pixels with ``W``, when the caller has it.
     """
     idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
     best = D.argmin(axis=1).astype(np.int16)
     score = np.take_along_axis(D, best[:, None].astype(np.int64), axis=1)[:, 0]
-    score = np.where(_other_wins(x, other, W, score), np.inf, score)
+    score = np.where(_other_wins(x, other, W, score, other_min), np.inf, score)
     return _result(linear_rgb.shape[:2], idx, best, score, threshold)
 
 
@@ -223,7 +236,8 @@ def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, 
 def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, colour_distance_px: np.ndarray,
                            prior_weight: float, foreground: np.ndarray | None, threshold: float = 5.0,
                            distances: np.ndarray | None = None, other: ColourModel | None = None,
-                           pixels: tuple[np.ndarray, np.ndarray] | None = None) -> Classification:
+                           pixels: tuple[np.ndarray, np.ndarray] | None = None,
+                           other_min: np.ndarray | None = None) -> Classification:
     """Step 3: Mahalanobis distance plus ``prior_weight * d(r_b, k)``, thresholded at ``T``.
 
     Parameters
@@ -238,13 +252,15 @@ def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.nda
         Not-shirt colours (see :func:`classify_gaussian`); they carry no pose prior.
     pixels : ((n,) int, (n, 3) float32), optional
         ``foreground_pixels(linear_rgb, foreground)`` when the caller has it.
+    other_min : (n,) float, optional
+        :func:`other_distance` of those pixels with ``W``, when the caller has it.
     """
     idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
     total = D + np.minimum(np.asarray(colour_distance_px, np.float32).T, 1e6) * np.float32(prior_weight)
     best = total.argmin(axis=1).astype(np.int16)
     score = np.take_along_axis(total, best[:, None].astype(np.int64), axis=1)[:, 0]
-    score = np.where(_other_wins(x, other, W, score), np.inf, score)
+    score = np.where(_other_wins(x, other, W, score, other_min), np.inf, score)
     return _result(linear_rgb.shape[:2], idx, best, score, threshold)
 
 

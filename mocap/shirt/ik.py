@@ -179,8 +179,9 @@ class IKPriors:
 
     def centroid_sqrt_info(self, patch: np.ndarray, shirt_size_px: float) -> np.ndarray:
         """``(n, 2, 2)`` whitening of pixel residuals of the given patches for a shirt of this image size."""
-        L = np.linalg.cholesky(self.centroid_cov[np.asarray(patch)])
-        return np.linalg.inv(L) / float(shirt_size_px)
+        if getattr(self, "_inv_chol", None) is None:  # once per priors object (several calls per frame)
+            object.__setattr__(self, "_inv_chol", np.linalg.inv(np.linalg.cholesky(np.asarray(self.centroid_cov, float))))
+        return self._inv_chol[np.asarray(patch)] / float(shirt_size_px)
 
     def save(self, path: str | Path) -> None:
         np.savez(path, centroid_cov=self.centroid_cov, blend_std=self.blend_std, motion_std=self.motion_std,

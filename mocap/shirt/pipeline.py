@@ -53,7 +53,7 @@ from mocap.calibration import Calibration
 from mocap.errors import MocapInputError
 from mocap.shirt.background import BackgroundModel, BackgroundParams
 from mocap.shirt.classify import (Classification, assign_patches, best_reference, classify_gaussian,
-                                  classify_pose_assisted, crop_image, crop_view, distance_to_patches, foreground_pixels,
+                                  classify_pose_assisted, crop_image, crop_view, distance_to_patches, foreground_pixels, other_distance,
                                   patch_centroids)
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, labelled_colour_means, solve_white_balance
 from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation, search_shirt
@@ -538,7 +538,7 @@ class ShirtTracker:
         # 1. crop, white balance, Gaussian classification (+ reference illuminations)
         t = clock()
         self._poor = [False] * C
-        lin, fgs, dists = [None] * C, [None] * C, [None] * C
+        lin, fgs, dists, others = [None] * C, [None] * C, [None] * C, [None] * C
         for ci, img in enumerate(images):
             loc = obs[ci].location
             if loc is None:
@@ -568,8 +568,9 @@ class ShirtTracker:
                         continue
                 obs[ci].pixels = foreground_pixels(lin[ci], fgs[ci])
                 dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
+                others[ci] = other_distance(obs[ci].pixels[1], self.other, self.W[ci])
                 cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other,
-                                        obs[ci].pixels)
+                                        obs[ci].pixels, others[ci])
                 break
             if self._first_fraction[ci] is None:
                 self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
@@ -582,6 +583,7 @@ class ShirtTracker:
                     self.W[ci] = self.references[ci].matrices[i].copy()
                     cls = alt
                     dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
+                    others[ci] = other_distance(obs[ci].pixels[1], self.other, self.W[ci])
             obs[ci].view, obs[ci].step1, obs[ci].W, obs[ci].foreground = view, cls, self.W[ci].copy(), fgs[ci]
         T["classify"] = (clock() - t) * 1e3
 
@@ -636,7 +638,7 @@ class ShirtTracker:
                                       for m in self._colour_members]) * np.float32(o.view.scale)
                 # C = 6 / s, s the side of the shirt's square (image pixels)
                 final = classify_pose_assisted(lin[ci], self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
-                                               fgs[ci], p.assisted_threshold, dists[ci], self.other, o.pixels)
+                                               fgs[ci], p.assisted_threshold, dists[ci], self.other, o.pixels, others[ci])
             else:
                 final = o.step1
             o.final = final
