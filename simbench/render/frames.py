@@ -111,7 +111,7 @@ class FrameRenderer:
         bufs = self._buffers.get(key)
         if bufs is None:
             bufs = self._buffers[key] = {
-                "radiance_rgba": np.empty((height, width, 4), np.float32),
+                "radiance": np.empty((height, width, 3), np.float32),
                 "radiance_red": np.empty((height, width, 1), np.float32),
                 "ids": np.empty((height, width), np.int32),
             }
@@ -170,8 +170,8 @@ class FrameRenderer:
                 rad_out = ("radiance_texture",)
             elif self.cfg.mode == "ir":
                 rad_out = ("radiance_red",)
-            else:  # the fast path drops alpha itself, without the read-back's extra copy
-                rad_out = ("radiance_rgba",) if self.sensor_backend == "numpy" else ("radiance",)
+            else:
+                rad_out = ("radiance",)
             for i, ((P, N), ts) in enumerate(zip(posed, sub_times)):
                 self.raster.update_dynamic(P, N)
                 lights, ambient, ring = self._lights(float(ts), cam)
@@ -183,7 +183,7 @@ class FrameRenderer:
                     acc = out["radiance_texture"] if n == 1 else gl_post.accumulate(
                         out["radiance_texture"], canvas.width, canvas.height, first=i == 0)
                 else:
-                    rad = out["radiance_rgba"] if "radiance_rgba" in out else out["radiance"]
+                    rad = out["radiance"]
                     if acc is None:  # one sub-frame: use the read-back buffer as it is
                         acc = rad if n == 1 else rad.copy()
                     else:

@@ -80,23 +80,26 @@ def _noisy_index(e, z, noisy, shot, read_var, full_well, kk, top, idx):
     nb = n // _BLOCK
     half = np.float32(0.5)
     zero = np.float32(0.0)
-    for b in range(nb + 1):
-        o = b * _BLOCK
-        m = min(_BLOCK, n - o)
-        if m == _BLOCK:  # full block: fixed trip count (vectorised)
-            if noisy:
-                for j in range(_BLOCK):
-                    v = _noisy_value(e[o + j], z[o + j], shot, read_var, full_well)
-                    idx[o + j] = np.uint16(min(max(v * kk[j] + half, zero), top))
-            else:
-                for j in range(_BLOCK):
-                    v = min(max(e[o + j], zero), full_well)
-                    idx[o + j] = np.uint16(min(max(v * kk[j] + half, zero), top))
-        else:
-            for j in range(m):
-                v = e[o + j]
-                v = _noisy_value(v, z[o + j], shot, read_var, full_well) if noisy else min(max(v, zero), full_well)
+    # Full blocks, then the tail in a loop of its own: with the tail inside the block loop
+    # the vectoriser's run-time overlap check of idx against e and z spans up to a block
+    # beyond the arrays' ends, so arrays within ~200 bytes of each other (the work
+    # arrays are often allocated back to back) fell back to the scalar loop, 6x slower.
+    if noisy:
+        for b in range(nb):
+            o = b * _BLOCK
+            for j in range(_BLOCK):
+                v = _noisy_value(e[o + j], z[o + j], shot, read_var, full_well)
                 idx[o + j] = np.uint16(min(max(v * kk[j] + half, zero), top))
+    else:
+        for b in range(nb):
+            o = b * _BLOCK
+            for j in range(_BLOCK):
+                v = min(max(e[o + j], zero), full_well)
+                idx[o + j] = np.uint16(min(max(v * kk[j] + half, zero), top))
+    for i in range(nb * _BLOCK, n):
+        v = e[i]
+        v = _noisy_value(v, z[i], shot, read_var, full_well) if noisy else min(max(v, zero), full_well)
+        idx[i] = np.uint16(min(max(v * kk[i - nb * _BLOCK] + half, zero), top))
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
