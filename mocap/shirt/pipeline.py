@@ -35,7 +35,15 @@ first four, the last two belong to the pose prior):
 * the pose prior of steps 3-4 is the blend or the previous pose, whichever agrees
   better with step 1 (the database here samples the joint ranges uniformly, so its
   blends can be far off); step 4 also starts from the previous pose;
-* the 40 % trigger of the reference search is relative to the first frame's fraction.
+* the 40 % trigger of the reference search is relative to the first frame's fraction;
+* when step 4's centroids stay far from the solved pose (``poor_fit``), a few more
+  split-and-solve passes run with a looser motion prior (``recovery_passes``): the
+  previous pose is then likely wrong (e.g. while locking on from a far-off first blend).
+
+The histogram search runs on every frame, as in the paper (a crop taken from the
+previous pose instead lets a wrong pose steer its own crop: tried, and it lost the arm
+for good in shirt_office).  Step 3's distance transforms run on 2 x 2-pixel cells of the
+rendered id map (``distance_reduce``).
 
 Every stage is timed (``FrameEstimate.timings_ms``).
 """
