@@ -130,6 +130,20 @@ def test_fast_sensor_noise_is_independent_over_time_and_between_neighbours():
     assert np.array_equal(again.frame(rad, np.random.default_rng([12, 5]), None, 0.0), frames[5])
 
 
+@pytest.mark.parametrize("overrides", [dict(mode="visible"), dict(mode="ir"), dict(mode="visible", jpeg_quality=80)],
+                         ids=["visible", "ir", "jpeg"])
+def test_fast_sensor_writes_into_a_given_frame(overrides):
+    cfg = SensorConfig(**overrides)
+    rad = _scene_radiance()
+    s = Sensor(cfg, 30.0)
+    expected = s.frame(rad, np.random.default_rng(3), WhiteBalance(cfg, 30.0), 0.4)
+    frames = np.zeros((2,) + expected.shape, np.uint8)
+    got = s.frame(rad, np.random.default_rng(3), WhiteBalance(cfg, 30.0), 0.4, out=frames[1])
+    assert np.shares_memory(got, frames[1]) and np.array_equal(frames[1], expected) and not frames[0].any()
+    with pytest.raises(ValueError):
+        s.frame(rad, None, None, 0.4, out=frames[1, :, :10])
+
+
 # ---------------------------------------------------------------- GL passes
 @pytest.fixture(scope="module")
 def gl_pipeline():

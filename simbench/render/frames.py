@@ -153,7 +153,7 @@ class FrameRenderer:
         C = len(self.cameras)
         ss = self.cfg.antialias
         H, W = self.cameras[0].height, self.cameras[0].width
-        images = np.zeros((C, H, W, 3), np.uint8)
+        images = np.empty((C, H, W, 3), np.uint8)  # every camera's frame is written whole
         id_maps = np.zeros((C, H, W), np.int16)
         vis = np.zeros((C, self.n_markers))
         n = len(subframe_poses)
@@ -202,7 +202,7 @@ class FrameRenderer:
                 continue
             if self.sensor_backend == "numpy":
                 img = cam.finish_radiance(acc, ss)  # the sum: the sensor divides by n
-                images[ci] = self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n)
+                self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n, out=images[ci])
                 continue
             radiance = acc / np.float32(n) if n > 1 else acc
             img = cam.finish_radiance(radiance, ss)

@@ -217,7 +217,7 @@ class Sensor:
         return table[off: off + n]
 
     def frame(self, radiance: np.ndarray, rng: np.random.Generator | None, wb: WhiteBalance | None,
-              psf_sigma_px: float = 0.0, n_subframes: int = 1) -> np.ndarray:
+              psf_sigma_px: float = 0.0, n_subframes: int = 1, out: np.ndarray | None = None) -> np.ndarray:
         """Radiance at the image -> the camera's 8-bit frame, optics blur included (fast path).
 
         The same model as ``cv2.GaussianBlur`` then :meth:`electrons` then
@@ -241,10 +241,12 @@ class Sensor:
         wb : the camera's white balance (ignored in ``ir`` mode)
         psf_sigma_px : Gaussian optics blur in pixels (0: none)
         n_subframes : number of shutter sub-frames summed in ``radiance``
+        out : (H, W, 3) uint8 C-contiguous array to write the frame into (saves a copy of
+            a new array), or None
 
         Returns
         -------
-        (H, W, 3) uint8 RGB frame (equal channels in ``ir`` mode)
+        (H, W, 3) uint8 RGB frame (equal channels in ``ir`` mode): ``out`` when given
         """
         cfg = self.cfg
         mono = cfg.mode == "ir"
@@ -282,14 +284,21 @@ class Sensor:
         kk = np.resize(np.asarray(k_idx, np.float32).reshape(-1), _BLOCK)
         idx = self._buffer("idx", (flat.size,), np.uint16)
         _noisy_index(flat, z, noisy, shot, read_var, full_well, kk, np.float32(top), idx)
-        frame = np.empty((H, W, 3), np.uint8)
+        if out is None:
+            frame = np.empty((H, W, 3), np.uint8)
+        elif out.shape != (H, W, 3) or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be a C-contiguous ({H}, {W}, 3) uint8 array")
+        else:
+            frame = out
         if mono:
             level = self._buffer("level", shape, np.uint8)
             _gather(idx, self.lut, level.reshape(-1))
             cv2.cvtColor(level, cv2.COLOR_GRAY2RGB, dst=frame)
         else:
             _gather(idx, self.lut, frame.reshape(-1))
-        return self.compress(frame)
+        if cfg.jpeg_quality > 0:
+            frame[...] = self.compress(frame)
+        return frame
 
     # ------------------------------------------------------------ reference
     def electrons(self, radiance: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
