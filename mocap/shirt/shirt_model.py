@@ -619,15 +619,8 @@ class ShirtModel:
         already has them (one pose rendered in several cameras).
         """
         P = self.world_vertices(q) if world is None else world
-        Xc = P @ camera.R.T + camera.t
-        z = Xc[:, 2]
-        if np.any(camera.dist != 0):
-            uv, _ = cv2.projectPoints(P, camera.rvec, camera.t, camera.K, camera.dist)
-            uv = uv.reshape(-1, 2)
-        else:
-            zs = np.where(z > _NEAR_M, z, 1.0)
-            uv = (Xc[:, :2] / zs[:, None]) @ camera.K[:2, :2].T + camera.K[:2, 2]
-        return self._finish(rasterise_faces(view.from_image(uv), z, self.faces, view.size, view.size))
+        uv, z = self._project(P, camera, view)
+        return self._finish(rasterise_faces(uv, z, self.faces, view.size, view.size))
 
     def _project(self, P: np.ndarray, camera: Camera, view: CropView) -> tuple[np.ndarray, np.ndarray]:
         """Crop-view pixel positions ``(V, 2)`` and depths ``(V,)`` of world points ``P``."""
