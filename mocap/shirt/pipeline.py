@@ -107,6 +107,12 @@ class ShirtPipelineParams:
     crop_growth : float
         When classified shirt pixels touch the crop's border, the crop grows by this
         factor and step 1 runs again (once).
+    crop_growth_min_pixels : int
+        Classified pixels in the crop's 2-pixel border band that count as touching: a
+        limb crossing the edge covers tens of them; a few clutter or rim pixels that
+        classify as shirt colours must not grow the crop on every frame (at 4 pixels the
+        crop grew on nearly every frame of the office scene and the arms were lost at a
+        coarser working resolution).
     work_size : int
         Working resolution of the crop (pixels per side, at most).
     wb_size : int
@@ -179,6 +185,7 @@ class ShirtPipelineParams:
     crop_factor_first: float = 6.0
     crop_margin: float = 1.2
     crop_growth: float = 1.5
+    crop_growth_min_pixels: int = 20
     work_size: int = 144
     wb_size: int = 64
     wb_every: int = 1
@@ -571,7 +578,7 @@ class ShirtTracker:
                     # border band decides this, and only it is classified here
                     band = _border_band(view.size) if fgs[ci] is None else _border_band(view.size) & fgs[ci]
                     probe = classify_gaussian(lin[ci], self.colours, self.W[ci], band, p.gaussian_threshold, None, self.other)
-                    if _touches_border(probe.colour):
+                    if _touches_border(probe.colour, min_pixels=p.crop_growth_min_pixels):
                         side = min(side * p.crop_growth, limit)
                         continue
                 obs[ci].pixels = foreground_pixels(lin[ci], fgs[ci])
