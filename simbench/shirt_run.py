@@ -69,7 +69,7 @@ TRAINING_TAKES: tuple[tuple[str, float, int, str, float], ...] = (
 white balance (K) for it).  Each take is white-balanced for its light, as the paper's five
 labelled white-balanced images; three lights give the colour model the spread of a real shirt."""
 
-_TRAINING_VERSION = 8
+_TRAINING_VERSION = 9
 
 
 def colour_labels(id_map: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:
@@ -118,6 +118,36 @@ def session_inputs(bench: Bench, frames: np.ndarray, gt, colours: ColourModel, p
     other = train_other_colours([frames[0, ci] for ci in range(len(labels))], labels, W0, rng)
     return W0, other, render_empty_frames(bench)
 
+
+
+@dataclass(frozen=True)
+class ShirtSession:
+    """Everything a shirt capture of one take starts from: the pose database, the trained
+    colour model and IK priors, the exact calibration and the user's session inputs
+    (see :func:`session_inputs`)."""
+
+    db: PoseDatabase
+    training: "ShirtTraining"
+    calibration: object
+    W0: list
+    other: object
+    empty: list
+
+    def tracker(self, params: ShirtPipelineParams) -> ShirtTracker:
+        """A fresh tracker of this session with ``params``."""
+        t = self.training
+        return ShirtTracker(self.db, t.colour_model, t.priors, self.calibration, self.W0, params, self.empty, self.other)
+
+
+def start_session(bench: Bench, frames: np.ndarray, gt, echo=print) -> ShirtSession:
+    """Database and training (built or loaded from the cache) and the session inputs of a take."""
+    cfg = bench.scenario.shirt_pipeline
+    sampling = PoseSampling(n_poses=cfg.database_size)
+    db = ensure_database(bench.params, sampling, cfg.database, echo=echo)
+    db.meta.setdefault("key", database_key(bench.params, sampling))
+    training = ensure_training(bench.scenario, db, cfg.training_frames, echo=echo)
+    W0, other, empty = session_inputs(bench, frames, gt, training.colour_model, np.asarray(db.geometry.patch_colour))
+    return ShirtSession(db, training, gt.calibration(), W0, other, empty)
 
 # --------------------------------------------------------------------------- training
 @dataclass(frozen=True)
@@ -377,22 +407,17 @@ def run_shirt_capture(bench: Bench, frames: np.ndarray, gt, out_dir: Path | None
     """
     sc = bench.scenario
     cfg = sc.shirt_pipeline
-    sampling = PoseSampling(n_poses=cfg.database_size)
-    db = ensure_database(bench.params, sampling, cfg.database, echo=echo)
-    db.meta.setdefault("key", database_key(bench.params, sampling))
-    training = ensure_training(sc, db, cfg.training_frames, echo=echo)
-    cal = gt.calibration()
-    C = len(cal)
+    session = start_session(bench, frames, gt, echo=echo)
+    db, training = session.db, session.training
     model = ShirtModel(db.mjcf_text, db.geometry)
     pc = model.patch_colour
     truth_labels = [colour_labels(gt.id_maps[n], pc) for n in gt.camera_names]
-    W0, other, empty = session_inputs(bench, frames, gt, training.colour_model, pc)
     params = ShirtPipelineParams(keep_classification=True)
     runs: dict[str, ShirtRun] = {}
     for name, p in (("full", params), ("baseline", params.baseline())):
         if name == "baseline" and not cfg.baseline:
             continue
-        tracker = ShirtTracker(db, training.colour_model, training.priors, cal, W0, p, empty, other)
+        tracker = session.tracker(p)
         runs[name] = track_sequence(tracker, frames, truth_labels if name == "full" else None)
 
     # ------------------------------------------------------------------ scoring
@@ -466,10 +491,10 @@ def run_shirt_capture(bench: Bench, frames: np.ndarray, gt, out_dir: Path | None
 
         for ci, name in enumerate(gt.camera_names):
             w = Mp4Writer(out / "shirt" / f"empty_{name}.mp4", frames.shape[3], frames.shape[2], sc.fps)
-            for f in empty[ci]:
+            for f in session.empty[ci]:
                 w.write(f)
             w.close()
-        (out / "shirt" / "database.txt").write_text(str(cfg.database or default_database_path(bench.params, sampling)) + "\n")
+        (out / "shirt" / "database.txt").write_text(str(cfg.database or default_database_path(bench.params, PoseSampling(n_poses=cfg.database_size))) + "\n")
         lines += ["Estimated poses: `shirt/poses.npz` (upper-body q, MuJoCo qpos with the other hinges at zero, joint centres). "
                   "For `mocap shirt` on `videos/*.mp4`: `shirt/colour_model.npz`, `shirt/ik_priors.npz`, "
                   "`shirt/scribbles_<camera>.png` (frame 0), `shirt/empty_<camera>.mp4` (the empty scene) and the database named "
@@ -505,19 +530,11 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
          f"{n_frames} frames timed after 3 warm-up frames, one core (BLAS, OpenCV, faiss: 1 thread)")
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     gt = seq.ground_truth
-    cfg = sc.shirt_pipeline
-    sampling = PoseSampling(n_poses=cfg.database_size)
-    db = ensure_database(bench.params, sampling, cfg.database, echo=echo)
-    db.meta.setdefault("key", database_key(bench.params, sampling))
-    training = ensure_training(sc, db, cfg.training_frames, echo=echo)
-    cal = gt.calibration()
-    pc = np.asarray(db.geometry.patch_colour)
-    W0, other, empty = session_inputs(bench, seq.frames, gt, training.colour_model, pc)
+    session = start_session(bench, seq.frames, gt, echo=echo)
     results: dict[str, float] = {}
     per_method = {}
     for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline())):
-        tracker = ShirtTracker(db, training.colour_model, training.priors, cal, W0, p, empty, other)
-        run = track_sequence(tracker, seq.frames)
+        run = track_sequence(session.tracker(p), seq.frames)
         per_method[name] = run.timings_ms[3:]
     full = per_method["full"]
     echo(f"{'stage':<22}{'ms / 2-camera frame':>22}")
@@ -531,7 +548,7 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     echo(f"{'total (baseline)':<22}{results['ms.total_baseline']:>22.2f}")
     # reference: histogram search without the integral histogram, same frames and masks
     bg = BackgroundModel()
-    bg.learn_empty(empty[0])
+    bg.learn_empty(session.empty[0])
     img = seq.frames[3, 0]
     mask = bg.apply(img)
     t0 = time.perf_counter()

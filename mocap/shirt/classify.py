@@ -138,6 +138,16 @@ def _result(shape: tuple[int, int], idx: np.ndarray, best: np.ndarray, score: np
                           float(ok.sum()) / max(len(idx), 1))
 
 
+def _classify_by_cost(shape: tuple[int, int], idx: np.ndarray, x: np.ndarray, cost: np.ndarray, threshold: float,
+                      other: ColourModel | None, W: np.ndarray, other_min: np.ndarray | None) -> Classification:
+    """Each foreground pixel's cheapest colour in ``cost`` ``(n, K)``; unclassified where a
+    not-shirt colour is nearer, or beyond ``threshold`` (steps 1 and 3 share this)."""
+    best = cost.argmin(axis=1).astype(np.int16)
+    score = np.take_along_axis(cost, best[:, None].astype(np.int64), axis=1)[:, 0]
+    score = np.where(_other_wins(x, other, W, score, other_min), np.inf, score)
+    return _result(shape, idx, best, score, threshold)
+
+
 def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
                       threshold: float = 3.0, distances: np.ndarray | None = None,
                       other: ColourModel | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
@@ -163,10 +173,7 @@ def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray,
     """
     idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
-    best = D.argmin(axis=1).astype(np.int16)
-    score = np.take_along_axis(D, best[:, None].astype(np.int64), axis=1)[:, 0]
-    score = np.where(_other_wins(x, other, W, score, other_min), np.inf, score)
-    return _result(linear_rgb.shape[:2], idx, best, score, threshold)
+    return _classify_by_cost(linear_rgb.shape[:2], idx, x, D, threshold, other, W, other_min)
 
 
 def best_reference(linear_rgb: np.ndarray, model: ColourModel, references: list[np.ndarray], foreground: np.ndarray | None,
@@ -258,10 +265,7 @@ def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.nda
     idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
     D = model.distances(x, W) if distances is None else distances
     total = D + np.minimum(np.asarray(colour_distance_px, np.float32).T, 1e6) * np.float32(prior_weight)
-    best = total.argmin(axis=1).astype(np.int16)
-    score = np.take_along_axis(total, best[:, None].astype(np.int64), axis=1)[:, 0]
-    score = np.where(_other_wins(x, other, W, score, other_min), np.inf, score)
-    return _result(linear_rgb.shape[:2], idx, best, score, threshold)
+    return _classify_by_cost(linear_rgb.shape[:2], idx, x, total, threshold, other, W, other_min)
 
 
 def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarray, patch_colour: np.ndarray,
@@ -288,7 +292,6 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
         Patch id per pixel, -1 where unclassified, where no patch of the colour is
         rendered, or beyond the gate.
     """
-    P = len(patch_colour)
     K = int(np.max(patch_colour)) + 1
     members = [np.flatnonzero(np.asarray(patch_colour) == k) for k in range(K)]
     m = max(len(x) for x in members)

@@ -55,7 +55,6 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
-import pinocchio as pin
 
 from mocap.calibration import Calibration
 from mocap.errors import MocapInputError
@@ -641,7 +640,6 @@ class ShirtTracker:
         fractions = np.zeros(C)
         for ci in seen:
             o = obs[ci]
-            cam = self.cameras[ci]
             # the prior pose's id map at a reduced resolution: distance transforms and anchors
             rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
             if p.pose_prior:
