@@ -21,16 +21,25 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help="Optical moti
 console = Console(stderr=True)
 
 
-def user_errors(fn):
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except MocapInputError as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2)
+def exit_on_user_errors(*errors: type[Exception], console: Console = console):
+    """A decorator turning the user-caused ``errors`` of a command into one line on
+    ``console`` and exit code 2 (no traceback: the message names the file, field and fix)."""
 
-    return wrapper
+    def decorate(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            try:
+                return fn(*args, **kwargs)
+            except errors as exc:
+                console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+                raise typer.Exit(2)
+
+        return wrapper
+
+    return decorate
+
+
+user_errors = exit_on_user_errors(MocapInputError)
 
 
 def order_videos_by_camera(videos: list[Path], camera_names: list[str]) -> list[Path]:

@@ -2,31 +2,20 @@
 
 from __future__ import annotations
 
-import functools
 import tomllib
 
-import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from mocap.cli import exit_on_user_errors
 from mocap.errors import MocapInputError
 from simbench.errors import SimbenchInputError
 
 console = Console(stderr=True)
 
 
-def user_errors(fn):
-    """Turn user-caused errors into one line on stderr and exit code 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except (SimbenchInputError, MocapInputError) as exc:
-            console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(2)
-
-    return wrapper
+#: User-caused errors of the bench or the pipeline: one line on stderr, exit code 2.
+user_errors = exit_on_user_errors(SimbenchInputError, MocapInputError, console=console)
 
 
 def progress_bar(description: str, total: int):
