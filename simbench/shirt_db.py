@@ -196,7 +196,7 @@ def cache_dir() -> Path:
 
 
 def database_key(params: BodyParams, sampling: PoseSampling) -> str:
-    blob = json.dumps({"subject": asdict(params), "sampling": asdict(sampling), "version": 3, "occluders": list(OCCLUDER_BODIES), "render": _RENDER_SIZE},
+    blob = json.dumps({"subject": asdict(params), "sampling": asdict(sampling), "version": 4, "occluders": list(OCCLUDER_BODIES), "render": _RENDER_SIZE},
                       sort_keys=True).encode()
     return hashlib.sha256(blob).hexdigest()[:12]
 

@@ -269,8 +269,16 @@ class PoseDatabase:
         basis = _principal_axes(enc - mean, min(pca_dims, len(enc)), rng)
         index = faiss.IndexHNSWFlat(basis.shape[0], hnsw_m)
         index.hnsw.efConstruction = 80
-        for a in range(0, n, 5000):
-            index.add(cls._project(encode_tiny(tiny[a:a + 5000], K), mean, basis))
+        # one thread: faiss inserts into the graph in parallel, and the graph (hence the
+        # approximate neighbours a query gets, hence the tracked poses) would then depend
+        # on the thread count and timing of the machine that built the database
+        threads = faiss.omp_get_max_threads()
+        faiss.omp_set_num_threads(1)
+        try:
+            for a in range(0, n, 5000):
+                index.add(cls._project(encode_tiny(tiny[a:a + 5000], K), mean, basis))
+        finally:
+            faiss.omp_set_num_threads(threads)
         db = cls(tiny, np.asarray(hinges, np.float32), Rotation.from_matrix(view_rotation).as_quat().astype(np.float32),
                  np.asarray(box_centre_m, np.float32), np.asarray(box_side_m, np.float32), geometry, mjcf_text, dict(meta),
                  mean.astype(np.float32), basis, faiss.serialize_index(index))
