@@ -69,7 +69,7 @@ TRAINING_TAKES: tuple[tuple[str, float, int, str, float], ...] = (
 white balance (K) for it).  Each take is white-balanced for its light, as the paper's five
 labelled white-balanced images; three lights give the colour model the spread of a real shirt."""
 
-_TRAINING_VERSION = 9
+_TRAINING_VERSION = 10
 
 
 def colour_labels(id_map: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:

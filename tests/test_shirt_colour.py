@@ -53,6 +53,34 @@ def test_white_balance_is_recovered_exactly_from_colour_means():
     assert solve_white_balance(np.full((3, 3), np.nan), reference[:3]) is None
 
 
+def test_white_balance_in_the_mahalanobis_metric_minimises_the_whitened_residuals():
+    rng = np.random.default_rng(5)
+    cm = _model(rng)
+    W_true = np.array([[1.3, 0.1, -0.05], [0.02, 0.9, 0.1], [-0.1, 0.05, 1.6]])
+    exact = cm.means @ np.linalg.inv(W_true).T
+    # exact means: both metrics recover W
+    np.testing.assert_allclose(solve_white_balance(exact, cm.means, whiten=cm.whiten), W_true, atol=1e-9)
+    # perturbed means (no exact W): the result is the least-squares optimum of the
+    # whitened residuals, as scipy's solver finds it, and beats the plain solution there
+    observed = exact * (1 + rng.normal(0, 0.15, exact.shape))
+    weights = np.array([1.0, 2.0, 0.5, 1.5])
+
+    def whitened(w: np.ndarray) -> np.ndarray:
+        e = observed @ w.reshape(3, 3).T - cm.means
+        return (np.einsum("kij,kj->ki", cm.whiten, e) * weights[:, None]).ravel()
+
+    from scipy.optimize import least_squares
+
+    ref = least_squares(whitened, np.eye(3).ravel(), xtol=1e-14, ftol=1e-14, gtol=1e-14).x.reshape(3, 3)
+    W = solve_white_balance(observed, cm.means, weights, whiten=cm.whiten)
+    np.testing.assert_allclose(W, ref, atol=1e-6)
+    plain = solve_white_balance(observed, cm.means, weights)
+    assert np.sum(whitened(W.ravel()) ** 2) < np.sum(whitened(plain.ravel()) ** 2)
+    # two colours: per-channel gains, exact when they explain the colours
+    Wd = solve_white_balance(cm.means[:2] / [2.0, 1.0, 0.5], cm.means[:2], whiten=cm.whiten[:2])
+    np.testing.assert_allclose(Wd, np.diag([2.0, 1.0, 0.5]), atol=1e-9)
+
+
 def test_reference_illuminations_keep_matrices_farther_than_half_a_frobenius_unit():
     refs = ReferenceIlluminations(np.eye(3))
     assert not refs.offer(np.eye(3) * 1.2)  # ||0.2 I||_F = 0.35

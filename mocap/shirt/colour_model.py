@@ -218,7 +218,7 @@ def train_colour_model(images: list[np.ndarray], labels: list[np.ndarray], names
 
 
 def solve_white_balance(observed: np.ndarray, reference: np.ndarray, weights: np.ndarray | None = None,
-                        min_colours: int = 3) -> np.ndarray | None:
+                        min_colours: int = 3, whiten: np.ndarray | None = None) -> np.ndarray | None:
     """3x3 ``W`` with ``W @ observed_k ~ reference_k`` in least squares.
 
     Parameters
@@ -232,6 +232,15 @@ def solve_white_balance(observed: np.ndarray, reference: np.ndarray, weights: np
     min_colours : int
         With fewer usable colours a diagonal ``W`` (per-channel gains) is solved, and
         with none at all the result is None.
+    whiten : (K, 3, 3) float, optional
+        ``L_k^-1`` of each colour's covariance (:attr:`ColourModel.whiten`): the residual
+        of colour ``k`` is then measured as the classifier measures it, in its own
+        Mahalanobis metric (generalised least squares).  Plain least squares weighs every
+        channel of every colour alike, so it fits the bright colours and leaves the dark
+        ones (blue, purple under a tungsten lamp) several standard deviations from their
+        Gaussians, where the classifier's threshold rejects them; in the Mahalanobis
+        metric the same labelled frame classifies about 0.9 of its shirt pixels correctly
+        instead of 0.35 (shirt_tungsten_off, frame 0).
 
     Returns
     -------
@@ -246,12 +255,24 @@ def solve_white_balance(observed: np.ndarray, reference: np.ndarray, weights: np
         return None
     w = np.ones(len(obs)) if weights is None else np.asarray(weights, float)
     A, B, ww = obs[ok], ref[ok], w[ok][:, None]
-    if ok.sum() < min_colours:
-        gains = (ww * A * B).sum(axis=0) / np.maximum((ww * A * A).sum(axis=0), 1e-12)
-        return np.diag(gains)
-    # rows of W: B[:, c] ~ A @ W[c]
-    Wt, *_ = np.linalg.lstsq(A * ww, B * ww, rcond=None)
-    return Wt.T
+    diagonal = ok.sum() < min_colours
+    if whiten is None:
+        if diagonal:
+            gains = (ww * A * B).sum(axis=0) / np.maximum((ww * A * A).sum(axis=0), 1e-12)
+            return np.diag(gains)
+        # rows of W: B[:, c] ~ A @ W[c]
+        Wt, *_ = np.linalg.lstsq(A * ww, B * ww, rcond=None)
+        return Wt.T
+    # whitened residual of colour k: w_k L_k^-1 (W o_k - mu_k), linear in the unknowns:
+    # W o_k = kron(I3, o_k^T) vec(W) (row-major vec), or diag(o_k) g for per-channel gains
+    Li = np.asarray(whiten, float)[ok]  # (m, 3, 3)
+    if diagonal:
+        M = Li * A[:, None, :]  # L^-1 diag(o)
+    else:
+        M = np.einsum("mij,mk->mijk", Li, A).reshape(len(A), 3, 9)  # L^-1 kron(I3, o^T)
+    rhs = np.einsum("mij,mj->mi", Li, B)
+    x, *_ = np.linalg.lstsq((M * ww[:, :, None]).reshape(-1, M.shape[2]), (rhs * ww).ravel(), rcond=None)
+    return np.diag(x) if diagonal else x.reshape(3, 3)
 
 
 def train_other_colours(images: list[np.ndarray], labels: list[np.ndarray], white_balance: list[np.ndarray],

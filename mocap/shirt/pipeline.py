@@ -81,6 +81,8 @@ STAGES: tuple[str, ...] = ("background", "histogram_search", "classify", "databa
                            "white_balance")
 """Timed stages of a frame, in order."""
 
+_LEFT_ARM = slice(7 + 3, 7 + 7)  # shoulder_l x y z, elbow_l in q
+_RIGHT_ARM = slice(7 + 7, 7 + 11)
 _CANONICAL_SIZE = 64  # px: orthographic render of the blended pose for the 6-DoF fit
 _CANONICAL_MARGIN = 1.15
 
@@ -205,6 +207,8 @@ class ShirtPipelineParams:
     recovery_passes: int = 3
     recovery_motion_scale: float = 4.0
     recovery_blend_scale: float = 1.0
+    arm_hypotheses: bool = True
+    hypothesis_margin: float = 0.01
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
@@ -311,13 +315,16 @@ def initial_white_balance(image: np.ndarray, labels: np.ndarray, colour_model: C
     """``W`` from one labelled frame (section 5.1): the user's scribbles, as colour ids per pixel (-1 unlabelled,
     :data:`mocap.shirt.colour_model.NOT_SHIRT` for not-shirt pixels, which are ignored here).
 
+    Least squares on the labelled colours' means, each residual in its colour's
+    Mahalanobis metric (:func:`mocap.shirt.colour_model.solve_white_balance`).
+
     Raises
     ------
     MocapInputError
         When no colour has enough labelled pixels.
     """
     means, counts = labelled_colour_means(image, labels, colour_model.n_colours, erode_px=1)
-    W = solve_white_balance(means, colour_model.means, np.sqrt(counts))
+    W = solve_white_balance(means, colour_model.means, np.sqrt(counts), whiten=colour_model.whiten)
     if W is None:
         raise MocapInputError("initial white balance: no shirt colour has enough labelled pixels; scribble on more patches of the first frame")
     return W
@@ -471,7 +478,8 @@ class ShirtTracker:
                 if len(cons2):
                     res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
                     cons = cons2
-            if p.pose_prior and p.recovery_passes and res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px)):
+            lost = res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px))
+            if p.pose_prior and p.recovery_passes and lost:
                 # the centroids are far from the pose: the previous pose (which the motion prior
                 # holds on to) is probably wrong, e.g. while the tracker is still locking on
                 # from a far-off first blend; loosen that prior and split and solve again
@@ -484,6 +492,8 @@ class ShirtTracker:
                         break
                     res = self.ik.solve(res.q, cons2, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
             q = res.q
+            if p.pose_prior and p.arm_hypotheses and (self._frames == 0 or lost):
+                q = self._arm_hypotheses(q, est, lin, sil)
         else:
             q = q_b.copy()
         T["ik"] = (time.perf_counter() - t) * 1e3
@@ -496,6 +506,44 @@ class ShirtTracker:
         if not p.keep_classification:
             est.cameras = []
         return est
+
+    def _arm_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict) -> np.ndarray:
+        """Each arm of pose ``q`` replaced by the arm of every database neighbour, the blend and the previous pose:
+        the best-agreeing arms (:meth:`_agreement`), solved again, replace ``q``'s when they agree better.
+
+        An addition to seed 001 for locking on: centroid IK from a far-off start can settle
+        with an arm pointing the wrong way (towards a camera, hidden in front of the
+        torso), where the gate of the patch split drops the pixels of the real arm and the
+        absence constraint is met; the agreement with step 1 still tells the two apart.
+        """
+        p = self.params
+        seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
+        cands = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
+        cands += [est.q_blend[None, 7:]] + ([self.q_prev[None, 7:]] if self.q_prev is not None else [])
+        arms = np.unique(np.concatenate(cands), axis=0)
+        best_q = q
+        best_score = self._agreement([q], est.cameras, seen)[0][0]
+        start = q.copy()
+        for sl in (_LEFT_ARM, _RIGHT_ARM):
+            trials = np.repeat(start[None], len(arms), axis=0)
+            trials[:, sl] = arms[:, sl.start - 7: sl.stop - 7]
+            scores, _ = self._agreement(list(trials), est.cameras, seen)
+            i = int(np.argmax(scores))
+            if scores[i] > best_score + p.hypothesis_margin:
+                start = trials[i]
+        if start is q:
+            return q
+        loose = [(est.q_blend, self.priors.blend_std * p.recovery_blend_scale)]
+        if self.q_prev is not None:
+            loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
+        res_q = start
+        for _ in range(p.correspondence_passes):
+            cons = self.reassign(res_q, est.cameras, lin)
+            if not len(cons):
+                break
+            res_q = self.ik.solve(res_q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
+        score = self._agreement([res_q], est.cameras, seen)[0][0]
+        return res_q if score > best_score + p.hypothesis_margin else best_q
 
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
@@ -673,21 +721,37 @@ class ShirtTracker:
         return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
 
     def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
-        p = self.params
         """The pose whose id map steps 3 and 4 use: the blended pose, or the previous frame's when that one agrees
-        better with the step-1 classification.
+        better with the step-1 classification (:meth:`_agreement`).
 
         Not in seed 001, whose database covers realistic poses densely; a database sampled
         uniformly over the joint ranges gives blends that can be far off, while the
-        previous pose of a tracked sequence is usually a few centimetres away.  Agreement:
-        the fraction of classified pixels that the pose's id map (at the reduced
-        resolution) shows with their colour within one cell, over all cameras.
+        previous pose of a tracked sequence is usually a few centimetres away.
 
         Returns the pose and its renders ``{camera: (rendered, pixel indices, patch distances)}``.
         """
+        p = self.params
         if self.q_prev is None:
             return q_b, {}
-        # the classified pixels of every camera and their cells in the render (shared by both poses)
+        scores, renders = self._agreement([q_b, self.q_prev], obs, seen)
+        best = 1 if scores[1] > scores[0] else 0
+        out = {}
+        for ci, rend in renders[best].items():
+            idx = obs[ci].pixels[0]
+            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
+        return (self.q_prev if best else q_b), out
+
+    def _agreement(self, poses: list[np.ndarray], obs: list[CameraObservation], seen: list[int]) -> tuple[list[float], list[dict]]:
+        """How well each pose explains the step-1 classification of every camera.
+
+        Agreement: the fraction of classified pixels (over all cameras) that the pose's id
+        map, at the reduced resolution, shows with their colour within one cell.  Step 1
+        does not depend on any pose, so poses are compared on the same evidence.
+
+        Returns the scores and each pose's renders ``{camera: Rendered}``.
+        """
+        r = self.params.render_size
+        # the classified pixels of every camera and their cells in the (edge-padded) render
         cells = {}
         for ci in seen:
             o = obs[ci]
@@ -697,38 +761,29 @@ class ShirtTracker:
             if not on.any():
                 continue
             ys, xs = np.divmod(idx[on], o.view.size)
-            r = p.render_size
             cy = np.minimum((ys * r) // o.view.size, r - 1)
             cx = np.minimum((xs * r) // o.view.size, r - 1)
             cells[ci] = ((cy + 1) * (r + 2) + cx + 1, col[on])
+        # the 3x3 neighbourhood as flat offsets in the padded map
+        offsets = (-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3)
         scores, renders = [], []
-        for q in (q_b, self.q_prev):
+        for q in poses:
             hit = tot = 0
             renders.append({})
-            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, p.render_size)) for ci in seen])
+            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, r)) for ci in seen])
             for ci, rend in zip(seen, rends):
-                o = obs[ci]
                 renders[-1][ci] = rend
                 if ci not in cells:
                     continue
-                # the rendered colour at (or next to) each classified pixel: a 3x3 max-filter of
-                # each colour's mask at the render's resolution (a few image pixels per cell);
-                # the map padded by its edge values, the neighbours are flat offsets
                 base, col = cells[ci]
-                r = rend.colour.shape[0]
                 padded = np.pad(rend.colour, 1, mode="edge").ravel()
                 match = np.zeros(len(col), bool)
-                for off in (-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3):
+                for off in offsets:
                     match |= padded[base + off] == col
                 hit += int(match.sum())
                 tot += len(col)
             scores.append(hit / max(tot, 1))
-        best = 1 if scores[1] > scores[0] else 0
-        out = {}
-        for ci, rend in renders[best].items():
-            idx = obs[ci].pixels[0]
-            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
-        return (self.q_prev if best else q_b), out
+        return scores, renders
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
                             rend) -> Constraints:
@@ -798,7 +853,7 @@ class ShirtTracker:
         p = self.params
         small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
         means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
-        W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4)
+        W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4, whiten=self.colours.whiten)
         if W is None or not np.all(np.isfinite(W)):
             return
         # keep W* only if it explains the colours under the final pose at least as well as
