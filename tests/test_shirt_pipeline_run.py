@@ -11,20 +11,27 @@ from simbench.run import run_scenario
 from simbench.scenario import load_scenario
 
 
-@pytest.fixture(scope="module")
-def shirt_run(tmp_path_factory):
-    cache = tmp_path_factory.mktemp("cache")
+# CI-sized database and training, no blur or supersampling
+_SMALL = {"sensor.motion_blur": False, "sensor.antialias": 1, "shirt_pipeline.database_size": 3000,
+          "shirt_pipeline.training_frames": 6}
+
+
+def _run_in_own_cache(tmp_path_factory, scenario: str, overrides: dict, name: str):
+    """``simbench run`` of a scenario with the database and training cached in a fresh directory."""
+    cache = tmp_path_factory.mktemp(f"cache_{name}")
     mp = pytest.MonkeyPatch()
     mp.setenv("SIMBENCH_CACHE_DIR", str(cache))
-    sc = load_scenario("scenarios/shirt_office.toml", overrides={
-        "duration_s": 0.4, "motion.start_s": 0.7, "sensor.motion_blur": False, "sensor.antialias": 1,
-        "shirt_pipeline.database_size": 3000, "shirt_pipeline.training_frames": 6})
-    out = tmp_path_factory.mktemp("run") / "shirt"
+    out = tmp_path_factory.mktemp("run") / name
     try:
-        result = run_scenario(sc, out)
+        result = run_scenario(load_scenario(scenario, overrides={**_SMALL, **overrides}), out)
     finally:
         mp.undo()
     return result, out, cache
+
+
+@pytest.fixture(scope="module")
+def shirt_run(tmp_path_factory):
+    return _run_in_own_cache(tmp_path_factory, "scenarios/shirt_office.toml", {"duration_s": 0.4, "motion.start_s": 0.7}, "shirt")
 
 
 def test_short_shirt_scenario_is_tracked_within_a_few_centimetres(shirt_run):
@@ -101,18 +108,8 @@ def test_mocap_shirt_cli_tracks_the_rendered_videos(shirt_run, tmp_path):
 
 @pytest.fixture(scope="module")
 def tungsten_run(tmp_path_factory):
-    """shirt_tungsten_off at 10 Hz over 2 s: the tungsten lamp goes off at 1.5 s (CI-sized database and training)."""
-    cache = tmp_path_factory.mktemp("cache_tungsten")
-    mp = pytest.MonkeyPatch()
-    mp.setenv("SIMBENCH_CACHE_DIR", str(cache))
-    sc = load_scenario("scenarios/shirt_tungsten_off.toml", overrides={
-        "duration_s": 2.0, "fps": 10.0, "sensor.motion_blur": False, "sensor.antialias": 1,
-        "shirt_pipeline.database_size": 3000, "shirt_pipeline.training_frames": 6})
-    try:
-        result = run_scenario(sc, tmp_path_factory.mktemp("run") / "tungsten")
-    finally:
-        mp.undo()
-    return result
+    """shirt_tungsten_off at 10 Hz over 2 s: the tungsten lamp goes off at 1.5 s."""
+    return _run_in_own_cache(tmp_path_factory, "scenarios/shirt_tungsten_off.toml", {"duration_s": 2.0, "fps": 10.0}, "tungsten")[0]
 
 
 def test_full_method_locks_on_and_survives_the_lamp_switched_off_where_the_baseline_does_not(tungsten_run):

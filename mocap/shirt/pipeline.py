@@ -38,7 +38,14 @@ first four, the last two belong to the pose prior):
 * the 40 % trigger of the reference search is relative to the first frame's fraction;
 * when step 4's centroids stay far from the solved pose (``poor_fit``), a few more
   split-and-solve passes run with a looser motion prior (``recovery_passes``): the
-  previous pose is then likely wrong (e.g. while locking on from a far-off first blend).
+  previous pose is then likely wrong (e.g. while locking on from a far-off first blend);
+* on the first frame and on such lost frames, each arm is also tried in the
+  configuration of every database neighbour, the blend and the previous pose, and the
+  arms that agree best with step 1 are solved again (``arm_hypotheses``): centroid IK
+  alone can settle with an arm pointing at a camera, hidden in front of the torso;
+* the white balance (section 5.1 and step 5) is least squares in each colour's
+  Mahalanobis metric (:func:`mocap.shirt.colour_model.solve_white_balance`), the metric
+  the classifier thresholds.
 
 The histogram search runs on every frame, as in the paper (a crop taken from the
 previous pose instead lets a wrong pose steer its own crop: tried, and it lost the arm
@@ -157,6 +164,11 @@ class ShirtPipelineParams:
         spread times ``recovery_motion_scale`` and the blend prior's times
         ``recovery_blend_scale`` (an addition: the previous pose is then likely wrong and
         would hold the estimate near it).
+    arm_hypotheses : bool
+        Full method, first frame and lost frames: try each arm in the configuration of
+        every database neighbour, the blend and the previous pose; solve again from the
+        arms that agree best with step 1 and keep the result when it agrees better by more
+        than ``hypothesis_margin`` (a fraction of the classified pixels).
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
