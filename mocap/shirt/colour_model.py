@@ -255,17 +255,11 @@ def solve_white_balance(observed: np.ndarray, reference: np.ndarray, weights: np
         return None
     w = np.ones(len(obs)) if weights is None else np.asarray(weights, float)
     A, B, ww = obs[ok], ref[ok], w[ok][:, None]
-    diagonal = ok.sum() < min_colours
-    if whiten is None:
-        if diagonal:
-            gains = (ww * A * B).sum(axis=0) / np.maximum((ww * A * A).sum(axis=0), 1e-12)
-            return np.diag(gains)
-        # rows of W: B[:, c] ~ A @ W[c]
-        Wt, *_ = np.linalg.lstsq(A * ww, B * ww, rcond=None)
-        return Wt.T
     # whitened residual of colour k: w_k L_k^-1 (W o_k - mu_k), linear in the unknowns:
-    # W o_k = kron(I3, o_k^T) vec(W) (row-major vec), or diag(o_k) g for per-channel gains
-    Li = np.asarray(whiten, float)[ok]  # (m, 3, 3)
+    # W o_k = kron(I3, o_k^T) vec(W) (row-major vec), or diag(o_k) g for per-channel gains;
+    # plain least squares is the same with L_k = I
+    Li = np.broadcast_to(np.eye(3), (len(A), 3, 3)) if whiten is None else np.asarray(whiten, float)[ok]
+    diagonal = ok.sum() < min_colours
     if diagonal:
         M = Li * A[:, None, :]  # L^-1 diag(o)
     else:
