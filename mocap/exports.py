@@ -22,12 +22,23 @@ Inside the pipeline: world Z up, metres, seconds (``docs/humanoid_spec.md``). Fi
   <label>_z_mm`` per marker, then ``<label>_filled`` (0/1) per marker; gaps are empty fields.
 * **BVH**: Y up by default (the usual BVH convention; ``up_axis="z"`` keeps the world axes),
   centimetres, angles in degrees; see :func:`write_bvh`.
+
+Reading other systems' files
+----------------------------
+:func:`read_c3d` and :func:`read_trc` return a :class:`CaptureTrajectories`: world axes
+(Z up), metres, seconds, and by default only the **physical markers**. Model outputs
+(Plug-in Gait angles, forces, moments, powers, segment axes, joint centres), virtual and
+unlabelled points, entries empty for the whole trial and repeated labels are set aside,
+each with the reason, in ``CaptureTrajectories.set_aside``; the file's units and up axis
+and how the up axis was decided are kept too. See :func:`read_c3d` for the rules.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Literal
 
@@ -42,6 +53,7 @@ from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 
 __all__ = [
+    "CaptureTrajectories",
     "write_c3d",
     "read_c3d",
     "write_trc",
@@ -131,6 +143,8 @@ def write_c3d(path: str | os.PathLike, traj: Trajectories, *, rate_hz: float | N
     point["SCALE"]["value"] = [-_C3D_RESIDUAL_STEP]  # negative: floating-point storage
     point["LABELS"]["value"] = [str(label) for label in traj.labels]
     point["DESCRIPTIONS"]["value"] = ["" for _ in traj.labels]
+    c3d.add_parameter("POINT", "X_SCREEN", ["+X"])  # world axes: Z up (read_c3d takes the up axis from Y_SCREEN)
+    c3d.add_parameter("POINT", "Y_SCREEN", ["+Z"])
     first_time = float(traj.times[0]) if F else 0.0
     c3d["header"]["points"]["first_frame"] = max(int(round(first_time * rate)), 0)
     c3d.add_parameter("SIMBENCH", "RESIDUAL_UNITS", ["px"])
@@ -142,32 +156,233 @@ def write_c3d(path: str | os.PathLike, traj: Trajectories, *, rate_hz: float | N
     return path
 
 
-def read_c3d(path: str | os.PathLike) -> Trajectories:
-    """Read the labelled points of a C3D file (any writer) as trajectories in metres.
+# ------------------------------------------------------------------------------ reading real files
+@dataclass
+class CaptureTrajectories(Trajectories):
+    """Trajectories read from a capture file, and what the reader set aside.
+
+    Attributes (besides :class:`~mocap.types.Trajectories`' ones: world axes, Z up, metres)
+    ----------
+    set_aside : dict[str, str]
+        Entries of the file that are not returned, ``label -> reason`` (a repeated label
+        is keyed ``"<label> (entry <k>)"``, ``k`` counting the file's points from 1).
+    source_units : str
+        Length unit of the file (``"mm"``, ``"m"``, ...); the positions are in metres.
+    source_up_axis : str
+        The file's vertical axis (``"x"``, ``"y"`` or ``"z"``), rotated onto world Z.
+    up_axis_reason : str
+        How ``source_up_axis`` was decided (a parameter, the caller, or the data).
+    point_rate_hz : float
+        The file's own frame rate (C3D ``POINT:RATE``, TRC ``DataRate``), exactly.
+    """
+
+    set_aside: dict[str, str] = field(default_factory=dict)
+    source_units: str = "m"
+    source_up_axis: str = "z"
+    up_axis_reason: str = ""
+    point_rate_hz: float = float("nan")
+
+
+# Plug-in Gait's model outputs that are points (segment origins and axes, e.g. PELO,
+# LFEA, RTIL, HEDO, TRXP) and joint centres (LHJC, RKJC, LeftHipCenter, ...): computed
+# by a model from the markers, never a marker themselves.
+_SEGMENT_POINT = re.compile(r"^(PEL|HED|TRX|CSP|[LR](FE|TI|FO|TO|CL|HU|RA|HN))[OALP]$")
+_JOINT_CENTRE = re.compile(r"(^|[a-z0-9_])[A-Z]{0,3}JC$|(?i:(hip|knee|ankle|joint|shoulder|elbow|wrist)_?cent(er|re))")
+_CENTRE_OF_MASS = re.compile(r"(?i)cent(er|re)_?of_?mass|^com$")
+# Kinetic and angle outputs by name, for files without POINT:ANGLES/FORCES/... lists.
+_KINETIC_NAME = re.compile(r"[a-z](Angles?|Force|GRF|Moment|Power)$")
+# Vicon's "*12": a reconstructed trajectory nobody labelled.
+_UNLABELLED = re.compile(r"^\*\d*$")
+# C3D point groups that hold model outputs (POINT:TYPE_GROUPS may name more).
+_OUTPUT_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
+# Heuristic up axis (see _decide_up_axis): every marker sample between these heights (m).
+_FLOOR_TOLERANCE_M, _CEILING_M = 0.1, 2.6
+
+
+def _bare_name(label: str) -> str:
+    """Label without a subject prefix (``"Matt:LKNE"`` -> ``"LKNE"``)."""
+    return label.rsplit(":", 1)[-1].strip()
+
+
+def _output_name_reason(label: str, all_labels: set[str]) -> str | None:
+    """Why a label names a model output, or None.
+
+    A Plug-in Gait segment writes four points (origin ``O`` and axis ends ``A``, ``L``,
+    ``P``): a name of that form counts only when its three siblings are in the file too,
+    since the same letters can be a marker's name (``RCLA``, a clavicle marker in c3d.org's
+    sub_labels.c3d, where no ``RCLO`` exists).
+    """
+    name = _bare_name(label)
+    if _SEGMENT_POINT.match(name) and all(label[:-1] + axis in all_labels for axis in "OALP"):
+        return "model output: Plug-in Gait segment origin/axis point"
+    if _JOINT_CENTRE.search(name):
+        return "model output: joint centre"
+    if _CENTRE_OF_MASS.search(name):
+        return "model output: centre of mass"
+    if _KINETIC_NAME.search(name):
+        return "model output: angle/force/moment/power (by name)"
+    return None
+
+
+def _classify_points(
+    labels: list[str],
+    present: np.ndarray,
+    output_groups: dict[str, str],
+) -> tuple[list[int], dict[str, str]]:
+    """Which entries are physical markers; the others with the reason.
+
+    Parameters
+    ----------
+    labels : list[str], length N
+        The file's point labels, in file order.
+    present : (F, N) bool
+        Where each entry has a sample.
+    output_groups : dict[str, str]
+        ``label -> group`` for labels listed in a model-output group (``POINT:ANGLES`` ...).
+
+    Returns
+    -------
+    kept : list[int]
+        Indices of the physical markers, in file order.
+    set_aside : dict[str, str]
+        ``label -> reason`` of every other entry (see :class:`CaptureTrajectories`).
+    """
+    N = len(labels)
+    reason: list[str | None] = [None] * N
+    point_outputs: list[int] = []  # name-identified outputs that are positions
+    all_labels = set(labels)
+    for i, label in enumerate(labels):
+        if label in output_groups:
+            reason[i] = f"model output: listed in POINT:{output_groups[label]}"
+        elif label == "":
+            reason[i] = "virtual point: no label"
+        elif label == "#":
+            reason[i] = "virtual point: '#' (the separator Vicon writes before model outputs)"
+        elif _UNLABELLED.match(label):
+            reason[i] = "unlabelled trajectory: Vicon's '*N', not identified as any marker"
+        else:
+            why = _output_name_reason(label, all_labels)
+            if why is not None:
+                reason[i] = why
+                if "angle/force" not in why:
+                    point_outputs.append(i)
+    F = present.shape[0]
+    for i in range(N):
+        if reason[i] is None and not present[:, i].any():
+            reason[i] = "empty for the whole trial"
+    # A model writes all its points in exactly the frames where it could run: an
+    # unnamed point present in exactly the frames of a joint centre or segment point
+    # (and not throughout the trial, where every marker would match) is computed too,
+    # e.g. walking2.c3d's condyle and malleolus landmarks RLFC ... LLMAL beside LAJC.
+    masks = {present[:, i].tobytes(): labels[i] for i in point_outputs if 0 < present[:, i].sum() < F}
+    for i in range(N):
+        if reason[i] is None and present[:, i].tobytes() in masks:
+            k = np.flatnonzero(present[:, i])
+            reason[i] = (f"virtual point: present in exactly the frames of the model output "
+                         f"{masks[present[:, i].tobytes()]!r} (frames {k[0]}-{k[-1]}), as a model's computed points are")
+    first: dict[str, int] = {}
+    for i in range(N):
+        if reason[i] is None:
+            if labels[i] in first:
+                reason[i] = f"duplicate label: entry {i + 1} repeats the label of entry {first[labels[i]] + 1}, which is kept"
+            else:
+                first[labels[i]] = i
+    kept = [i for i in range(N) if reason[i] is None]
+    set_aside: dict[str, str] = {}
+    for i in range(N):
+        if reason[i] is not None:
+            key = labels[i] if labels[i] not in set_aside and labels[i] not in first else f"{labels[i]} (entry {i + 1})"
+            set_aside[key] = reason[i]
+    return kept, set_aside
+
+
+_UP_TO_Z = {
+    "z": np.eye(3),
+    "y": _Z_UP_TO_Y_UP.T,  # (x, y, z) -> (x, -z, y): +90 deg about X, as opensim_to_world
+    "x": np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),  # (x, y, z) -> (-z, y, x): -90 deg about Y
+}
+
+
+def _decide_up_axis(xyz_m: np.ndarray, context: str, default: str) -> tuple[str, str]:
+    """The up axis of file data ``xyz_m (F, M, 3)`` without axis metadata, and why.
+
+    The data decide when exactly one axis has every sample between -0.1 m and 2.6 m:
+    markers on people and their equipment stand on a floor near 0 and stay below 2.6 m,
+    while the horizontal axes of a lab cross zero or reach far. Otherwise ``default``.
+    """
+    finite = xyz_m[np.isfinite(xyz_m).all(axis=-1)]
+    if len(finite):
+        fits = [a for k, a in enumerate("xyz")
+                if finite[:, k].min() >= -_FLOOR_TOLERANCE_M and finite[:, k].max() <= _CEILING_M]
+        if len(fits) == 1:
+            return fits[0], (f"{context}; from the data: only {fits[0].upper()} keeps every marker between "
+                             f"{-_FLOOR_TOLERANCE_M:g} and {_CEILING_M:g} m, as heights above a floor do")
+    return default, f"{context}; the data do not tell, {default.upper()} assumed"
+
+
+def _rotate_to_z_up(xyz: np.ndarray, up: str) -> np.ndarray:
+    return xyz if up == "z" else xyz @ _UP_TO_Z[up].T
+
+
+def read_c3d(
+    path: str | os.PathLike,
+    *,
+    physical_only: bool = True,
+    up_axis: Literal["auto", "x", "y", "z"] = "auto",
+) -> CaptureTrajectories:
+    """Read the markers of a C3D file (any writer) as trajectories: world Z up, metres, seconds.
 
     Points with a negative residual (C3D's "invalid") are NaN. For files written by
     :func:`write_c3d` the filled flags and the pixel residuals come back too; other files
     get ``filled = False`` (vendors disagree on what a zero residual means) and NaN residuals.
 
+    **Physical markers only** (``physical_only=True``, the default). Set aside, in this order,
+    each with its reason in ``set_aside``:
+
+    1. labels listed in ``POINT:ANGLES``, ``FORCES``, ``MOMENTS``, ``POWERS``, ``SCALARS``,
+       ``REACTIONS`` and any other group ``POINT:TYPE_GROUPS`` names (model outputs stored
+       as points: they are not positions);
+    2. virtual and unlabelled points: an empty label, Vicon's ``#`` separator, ``*N``;
+    3. model outputs by name (any subject prefix ``Name:`` ignored): Plug-in Gait segment
+       points (``PELO``, ``LFEA``, ``RTIL``, ``HEDP``, ``TRXO`` ...), joint centres (``LHJC``,
+       ``RKJC``, ``LeftHipCenter``, ``RightHipCenterScore``), centre of mass, and names
+       ending in ``Angle(s)``, ``Force``, ``GRF``, ``Moment``, ``Power``;
+    4. entries with no sample in the whole trial;
+    5. points present in exactly the frames of a joint centre or segment point of 3. (not
+       throughout the trial): a model computes all its points in the same frames, so
+       these are its landmarks (e.g. the condyles and malleoli of ``walking2.c3d``);
+    6. a label repeated: the first entry is kept, later ones set aside.
+
+    ``physical_only=False`` returns every entry as it is (``set_aside`` empty).
+
+    **Units**: ``POINT:UNITS`` (mm, m, cm, dm, in) to metres.
+
+    **Axes**: the result is Z up. The file's up axis is ``up_axis`` if given, else the
+    letter of ``POINT:Y_SCREEN`` (the axis drawn vertically; its sign is ignored: Qualisys
+    writes ``-Z`` for Z-up data), else ``Z`` for files written by :func:`write_c3d`, else
+    the one axis along which every physical marker lies between -0.1 and 2.6 m, else Z.
+    A Y-up file becomes ``(x, y, z) -> (x, -z, y)`` (+90 deg about X: Y onto Z, X kept), an
+    X-up one ``(x, y, z) -> (-z, y, x)``. ``source_up_axis`` and ``up_axis_reason`` say which.
+
+    **Time**: ``times = first_frame / rate + k / rate`` with the exact ``POINT:RATE``
+    (kept in ``point_rate_hz``; it may be non-integer, e.g. 69.9926 Hz).
+
     Returns
     -------
-    Trajectories
+    CaptureTrajectories
     """
     path = Path(path)
     if not path.is_file():
         raise InputFileError(path, "no such file", "give the path of an existing .c3d file")
+    if up_axis not in ("auto", "x", "y", "z"):
+        raise MocapInputError(f"{path}: up_axis must be 'auto', 'x', 'y' or 'z', got {up_axis!r}")
     try:
         c3d = ezc3d.c3d(str(path))
     except (OSError, RuntimeError, ValueError) as exc:
         raise InputFileError(path, f"not a readable C3D file ({exc})", "give a C3D file (e.g. one written by write_c3d, Vicon, Qualisys)") from None
     params = c3d["parameters"]
     point = params["POINT"]
-    labels = list(point["LABELS"]["value"])
-    i = 2
-    while f"LABELS{i}" in point:
-        labels += list(point[f"LABELS{i}"]["value"])
-        i += 1
-    labels = [str(label).strip() for label in labels]
+    labels = _c3d_strings(point, "LABELS")
     units = str(point["UNITS"]["value"][0]).strip().lower() if "UNITS" in point and len(point["UNITS"]["value"]) else "mm"
     if units not in _UNIT_TO_M:
         raise InputFileError(path, f"POINT:UNITS is {units!r}", f"use a file in one of {sorted(_UNIT_TO_M)}", field="POINT:UNITS")
@@ -177,12 +392,41 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
     pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M', F)
     n = min(pts.shape[1], len(labels))
     labels = labels[:n]
-    xyz = pts[:3, :n].transpose(2, 1, 0) * _UNIT_TO_M[units]  # (F, M, 3)
+    xyz = pts[:3, :n].transpose(2, 1, 0) * _UNIT_TO_M[units]  # (F, M, 3), file axes
     residual = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)[0, :n].T  # (F, M)
     invalid = (residual < 0) | ~np.isfinite(xyz).all(axis=2)
     xyz[invalid] = np.nan
     F = xyz.shape[0]
     ours = "SIMBENCH" in params and "RESIDUAL_UNITS" in params["SIMBENCH"]
+
+    if physical_only:
+        groups = [g for g in _OUTPUT_GROUPS]
+        if "TYPE_GROUPS" in point:  # pairs (group, type): ANGLES, ANGLE, FORCES, FORCE, ...
+            groups += [g.strip() for g in list(point["TYPE_GROUPS"]["value"])[0::2]]
+        output_groups: dict[str, str] = {}
+        for g in dict.fromkeys(groups):
+            if g in point and g not in ("LABELS", "DESCRIPTIONS", "UNITS"):
+                for name in _c3d_strings(point, g):
+                    output_groups.setdefault(name, g)
+        kept, set_aside = _classify_points(labels, ~invalid, output_groups)
+    else:
+        kept, set_aside = list(range(n)), {}
+
+    if up_axis != "auto":
+        hint, why = up_axis, f"up_axis = {up_axis!r} given by the caller"
+    elif "Y_SCREEN" in point and len(point["Y_SCREEN"]["value"]) and str(point["Y_SCREEN"]["value"][0]).strip()[-1:].lower() in "xyz":
+        y_screen = str(point["Y_SCREEN"]["value"][0]).strip()
+        hint, why = y_screen[-1].lower(), f"POINT:Y_SCREEN = {y_screen!r}"
+    elif ours:
+        hint, why = "z", "written by simbench (world axes, Z up)"
+    else:
+        hint, why = None, ""
+    if hint is not None:
+        up = hint
+    else:
+        up, why = _decide_up_axis(xyz[:, kept], "no POINT:Y_SCREEN", "z")  # Z: the usual C3D lab frame
+    xyz = _rotate_to_z_up(xyz, up)
+
     if ours and "FIRST_TIME_S" in params["SIMBENCH"]:
         t0 = float(np.asarray(params["SIMBENCH"]["FIRST_TIME_S"]["value"]).ravel()[0])
     else:
@@ -193,8 +437,21 @@ def read_c3d(path: str | os.PathLike) -> Trajectories:
         residual_px = np.where((residual > 0) & ~invalid, residual, np.nan)
     else:
         filled = np.zeros((F, n), dtype=bool)
-        residual_px = None
-    return Trajectories(labels, xyz, times, filled=filled, residual_px=residual_px)
+        residual_px = np.full((F, n), np.nan)
+    return CaptureTrajectories(
+        [labels[i] for i in kept], xyz[:, kept], times, filled=filled[:, kept], residual_px=residual_px[:, kept],
+        set_aside=set_aside, source_units=units, source_up_axis=up, up_axis_reason=why, point_rate_hz=rate,
+    )
+
+
+def _c3d_strings(group: dict, name: str) -> list[str]:
+    """A string parameter and its continuations (``LABELS``, ``LABELS2``, ...), stripped."""
+    values: list[str] = []
+    key, i = name, 2
+    while key in group:
+        values += [str(v).strip() for v in group[key]["value"]]
+        key, i = f"{name}{i}", i + 1
+    return values
 
 
 # ---------------------------------------------------------------------------------------- TRC
@@ -250,22 +507,38 @@ def write_trc(
     return path
 
 
-def read_trc(path: str | os.PathLike, *, axes: Literal["opensim", "world"] = "opensim") -> Trajectories:
-    """Read a TRC file (ours, OpenSim's or a Motion Analysis one) as trajectories in metres.
+def read_trc(
+    path: str | os.PathLike,
+    *,
+    axes: Literal["opensim", "world", "auto"] = "opensim",
+    physical_only: bool = True,
+) -> CaptureTrajectories:
+    """Read a TRC file (ours, OpenSim's or a Motion Analysis one) as trajectories: world Z up, metres.
 
     Parameters
     ----------
     path : path-like
-    axes : {"opensim", "world"}
-        Axes of the file: ``"opensim"`` (Y up, default, as :func:`write_trc` writes) is
-        rotated back to the world's Z up; ``"world"`` is taken as is.
+    axes : {"opensim", "world", "auto"}
+        Axes of the file. ``"opensim"`` (default, as :func:`write_trc` writes): Y up, rotated
+        back to the world's Z up by :func:`opensim_to_world`, ``(x, y, z) -> (x, -z, y)``;
+        ``"world"``: Z up, taken as is; ``"auto"``: TRC files do not say, so the data decide
+        (the one axis along which every marker stays between -0.1 and 2.6 m is up, as
+        :func:`read_c3d` does), and Y (OpenSim's convention) when they cannot. The result
+        is Z up in every case; ``source_up_axis`` and ``up_axis_reason`` say what was done.
+    physical_only : bool
+        Set aside model outputs by name, entries empty for the whole trial and repeated
+        labels (the rules 3, 4 and 6 of :func:`read_c3d`; TRC has no parameter groups).
 
     Returns
     -------
-    Trajectories
-        Gaps (empty or ``NaN`` fields) are NaN.
+    CaptureTrajectories
+        Gaps (empty or ``NaN`` fields) are NaN. ``times`` are ``Time[0] + k / DataRate``
+        when the Time column agrees with that to within half a frame (some writers round
+        it, e.g. to 0.033 s at 30 Hz), else the Time column as written.
     """
     path = Path(path)
+    if axes not in ("opensim", "world", "auto"):
+        raise MocapInputError(f"{path}: axes must be 'opensim' (Y up), 'world' (Z up) or 'auto', got {axes!r}")
     try:
         lines = path.read_text().splitlines()
     except OSError as exc:
@@ -287,6 +560,10 @@ def read_trc(path: str | os.PathLike, *, axes: Literal["opensim", "world"] = "op
         n_markers = int(meta["NumMarkers"])
     except ValueError:
         raise InputFileError(path, f"NumMarkers is {meta['NumMarkers']!r}", "write the number of markers", field="NumMarkers") from None
+    try:
+        rate = float(meta["DataRate"])
+    except ValueError:
+        rate = float("nan")
     labels = [t.strip() for t in lines[3].split("\t")[2:] if t.strip()]
     if len(labels) != n_markers:
         raise InputFileError(path, f"{len(labels)} marker names on line 4 but NumMarkers = {n_markers}", "make the header agree with the columns", field="NumMarkers")
@@ -299,9 +576,27 @@ def read_trc(path: str | os.PathLike, *, axes: Literal["opensim", "world"] = "op
             data[i, : len(fields)] = [float(v) if v.strip() else np.nan for v in fields]
         except ValueError:
             raise InputFileError(path, f"data row {i + 1} has a field that is not a number", "fix or remove that row", field=f"line {i + 7}") from None
-    xyz = data[:, 2:].reshape(len(rows), n_markers, 3) * _UNIT_TO_M[units]
-    xyz = _axes_in(xyz, axes, path)
-    return Trajectories(labels, xyz, data[:, 1])
+    F = len(rows)
+    xyz = data[:, 2:].reshape(F, n_markers, 3) * _UNIT_TO_M[units]
+    times = data[:, 1]
+    if np.isfinite(rate) and rate > 0 and F and np.isfinite(times).all():
+        grid = times[0] + np.arange(F) / rate
+        if np.abs(times - grid).max() < 0.5 / rate:
+            times = grid
+    else:
+        rate = 1.0 / np.median(np.diff(times)) if F > 1 else float("nan")
+    if physical_only:
+        kept, set_aside = _classify_points(labels, np.isfinite(xyz).all(axis=2), {})
+    else:
+        kept, set_aside = list(range(n_markers)), {}
+    if axes == "auto":
+        up, why = _decide_up_axis(xyz[:, kept], "axes = 'auto' (TRC does not say)", "y")  # Y: OpenSim's convention
+    else:
+        up = "y" if axes == "opensim" else "z"
+        why = f"axes = {axes!r} given by the caller"
+    xyz = _rotate_to_z_up(xyz, up)
+    return CaptureTrajectories([labels[i] for i in kept], xyz[:, kept], times, set_aside=set_aside, source_units=units,
+                               source_up_axis=up, up_axis_reason=why, point_rate_hz=float(rate))
 
 
 def _axes_out(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
@@ -309,14 +604,6 @@ def _axes_out(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
         return world_to_opensim(xyz)
     if axes == "world":
         return np.asarray(xyz, dtype=np.float64)
-    raise MocapInputError(f"{path}: axes must be 'opensim' (Y up) or 'world' (Z up), got {axes!r}")
-
-
-def _axes_in(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
-    if axes == "opensim":
-        return opensim_to_world(xyz)
-    if axes == "world":
-        return xyz
     raise MocapInputError(f"{path}: axes must be 'opensim' (Y up) or 'world' (Z up), got {axes!r}")
 
 
