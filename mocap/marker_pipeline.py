@@ -18,9 +18,11 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from mocap.calibration import Calibration
+from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, normalised_detections, reconstruct_unlabelled
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError
-from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, initial_labels
+from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
+from mocap.model_labelling import ClusterMarkerModel, ModelLabellingParams, PointLabels, SkeletonMarkerModel, label_points
 from mocap.reassociation import ReassociationParams, reassociate
 from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.swap_repair import SwapRepairParams, find_jumps, repair_swaps
@@ -30,7 +32,21 @@ from mocap.types import Detections, Tracks2D, Trajectories
 
 @dataclass
 class MarkerPipelineParams:
+    """Settings of the marker pipeline.
+
+    ``labelling`` chooses how labels are found: ``"model"`` (default) reconstructs unlabelled 3D
+    points from every frame's blobs and labels them with the subject's model from the frame where
+    the fit is most confident, forward and backward, re-acquiring markers after gaps
+    (:mod:`mocap.model_labelling`); ``"tracker"`` is seed 000's scheme, labels from a T-pose first
+    frame kept by a 2D ``tracker`` in every camera (:mod:`mocap.labelling`, :mod:`mocap.tracking`).
+    The model path needs a subject (skeleton) or a marker model (rigid clusters); without either
+    it falls back to the tracker path.
+    """
+
     detection: DetectionParams = field(default_factory=DetectionParams)
+    labelling: str = "model"
+    correspondence: CorrespondenceParams = field(default_factory=CorrespondenceParams)
+    model_labelling: ModelLabellingParams = field(default_factory=ModelLabellingParams)
     tracker: str = "kalman"
     tracker_params: dict = field(default_factory=dict)
     label_init: LabelInitParams = field(default_factory=LabelInitParams)
@@ -92,6 +108,7 @@ def capture_from_detections(
     rng: np.random.Generator | None = None,
     subject=None,
     detection_ms: float = 0.0,
+    marker_model: ClusterMarkerModel | None = None,
 ) -> MarkerCapture:
     """Label, track, reconstruct and (optionally) solve the skeleton.
 
@@ -101,7 +118,11 @@ def capture_from_detections(
     calibration : Calibration
     template : LabelTemplate (T-pose marker positions, subject-local frame)
     times : (F,) seconds
-    subject : mocap.subject.SubjectModel, needed when ``params.solve_skeleton``
+    subject : mocap.subject.SubjectModel, needed when ``params.solve_skeleton`` and used by
+        model-based labelling
+    marker_model : ClusterMarkerModel, optional
+        Rigid marker clusters of a subject without a skeleton (from a labelled trial), for
+        model-based labelling.
     """
     params = params or MarkerPipelineParams()
     if rng is None:
@@ -112,13 +133,33 @@ def capture_from_detections(
     F = len(times)
     timings = {"detection": detection_ms}
     t0 = time.perf_counter()
-    init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
-    timings["label_init"] = (time.perf_counter() - t0) * 1e3
-    t0 = time.perf_counter()
-    dt = float(np.median(np.diff(times))) if F > 1 else 1 / 30
-    tracks = track_cameras(detections, init.xy, list(template.names), calibration.names, tracker=params.tracker,
-                           dt=dt, rng=rng, **params.tracker_params)
-    timings["tracking"] = (time.perf_counter() - t0) * 1e3
+    use_model = params.labelling == "model" and (subject is not None or marker_model is not None)
+    if params.labelling not in ("model", "tracker"):
+        raise MocapInputError(f"labelling={params.labelling!r}: use 'model' or 'tracker'")
+    if use_model:
+        frames = [reconstruct_unlabelled([d[f] for d in detections], calibration, params.correspondence)
+                  for f in range(F)]
+        timings["correspondence"] = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        if subject is not None:
+            from mocap.skeleton import SkeletonSolver
+
+            model = SkeletonMarkerModel(SkeletonSolver(subject.with_markers([n for n in template.names if n in subject.marker_names])))
+        else:
+            model = marker_model
+        labels = label_points(frames, model, params.model_labelling)
+        tracks, init = _tracks_from_point_labels(labels, frames, detections, list(template.names), calibration)
+        timings["label_init"] = 0.0
+        timings["labelling"] = (time.perf_counter() - t0) * 1e3
+        timings["tracking"] = 0.0
+    else:
+        init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
+        timings["label_init"] = (time.perf_counter() - t0) * 1e3
+        t0 = time.perf_counter()
+        dt = float(np.median(np.diff(times))) if F > 1 else 1 / 30
+        tracks = track_cameras(detections, init.xy, list(template.names), calibration.names, tracker=params.tracker,
+                               dt=dt, rng=rng, **params.tracker_params)
+        timings["tracking"] = (time.perf_counter() - t0) * 1e3
     t0 = time.perf_counter()
     traj = reconstruct(tracks, calibration, params.reconstruction, times=np.asarray(times, float), detections=detections)
     reassoc_stats: dict[str, int] = {}
@@ -186,6 +227,38 @@ def capture_from_detections(
     reassoc_stats["jump_samples_removed"] = sum(1 for e in swaps if e[0] == "jump")
     tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
     return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
+
+
+def _tracks_from_point_labels(labels: PointLabels, frames: list[UnlabelledPoints], detections: list[list[Detections]],
+                              names: list[str], calibration: Calibration) -> tuple[Tracks2D, LabelInit]:
+    """Labelled 3D points back to labelled 2D measurements ``(F, C, M, 2)``: each labelled point
+    hands its label to the detections it was triangulated from."""
+    F, C, M = len(frames), len(calibration), len(names)
+    col = {n: i for i, n in enumerate(labels.labels)}
+    xy = np.full((F, C, M, 2), np.nan)
+    for f, fr in enumerate(frames):
+        for m, n in enumerate(names):
+            k = col.get(n, -1)
+            i = labels.point_index[f, k] if k >= 0 else -1
+            if i < 0:
+                continue
+            for c in range(C):
+                j = fr.detection_index[i, c]
+                if j >= 0:
+                    xy[f, c, m] = detections[c][f].xy[j]
+    status = np.where(np.isfinite(xy[..., 0]), Tracks2D.TRACKED, 0).astype(np.int8)
+    tracks = Tracks2D(list(names), xy, xy.copy(), status, list(calibration.names))
+    s0 = labels.start_frame
+    index = np.full((C, M), -1)
+    points = np.full((M, 3), np.nan)
+    for m, n in enumerate(names):
+        k = col.get(n, -1)
+        i = labels.point_index[s0, k] if k >= 0 else -1
+        if i >= 0:
+            index[:, m] = frames[s0].detection_index[i]
+            points[m] = frames[s0].xyz[i]
+    init = LabelInit(list(names), index, xy[s0].copy(), Placement(0.0, 0.0, 0.0), points, float("nan"))
+    return tracks, init
 
 
 def _repair_swaps(traj: Trajectories, measured: Tracks2D, params: SwapRepairParams | None,

@@ -1,0 +1,260 @@
+"""Unlabelled 3D points from unlabelled blobs: multi-view correspondence by epipolar voting.
+
+Stage header
+------------
+inputs
+    One frame: per camera, the :class:`~mocap.types.Detections` (distorted pixels), and the
+    :class:`~mocap.calibration.Calibration`.
+outputs
+    :class:`UnlabelledPoints`: ``(N, 3)`` points in metres, and for each the index of the
+    detection it used in every camera (-1 where none), its view count and its residual.
+
+How
+---
+1. Every detection is undistorted to normalised coordinates once.
+2. For every camera pair ``(a, b)`` the symmetric point-to-epipolar-line distance of every
+   detection pair is computed from the essential matrix ``E = [t_ab]x R_ab`` (in pixels of
+   each camera); pairs within ``epipolar_px`` are candidates.
+3. Each candidate is triangulated from its two views (batched DLT), must lie in front of
+   both cameras, and collects *support*: in every other camera, the nearest detection to
+   its projection within ``support_px`` (``scipy.spatial.cKDTree``).
+4. Candidates are taken greedily, most views first, then smallest residual. A candidate is
+   accepted when its two base detections are still free; its free support views join it,
+   and the point is triangulated again from all its views with worst-view rejection
+   (:func:`mocap.triangulation.triangulate_normalized`). Each detection serves at most one
+   point, so a marker seen by many cameras gives one point, not one per pair, and the
+   ghosts of wrong pairings (which rarely gather support) come last and find their
+   detections taken.
+
+A point seen by two cameras only is kept but flagged ``ambiguous`` when either of its
+detections had more than one epipolar candidate in the other camera: the labeller trusts
+such points only close to a prediction.
+
+This is hand-written because no maintained library does multi-view correspondence of
+unlabelled point sets (OpenCV and aniposelib triangulate points that are already matched).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from mocap.calibration import Calibration
+from mocap.triangulation import pixels_to_normalized, triangulate_normalized
+from mocap.types import Detections
+
+__all__ = ["CorrespondenceParams", "UnlabelledPoints", "reconstruct_unlabelled", "normalised_detections"]
+
+
+@dataclass(frozen=True)
+class CorrespondenceParams:
+    """Settings of :func:`reconstruct_unlabelled`.
+
+    Attributes
+    ----------
+    epipolar_px : float
+        Largest point-to-epipolar-line distance of a candidate pair, pixels.
+    support_px : float
+        Largest distance of a supporting detection from the candidate's projection, pixels.
+    max_residual_px : float
+        Worst-view rejection threshold of the final triangulation, pixels.
+    min_depth_m : float
+        A point must lie at least this far in front of each camera that sees it.
+    """
+
+    epipolar_px: float = 2.5
+    support_px: float = 3.0
+    max_residual_px: float = 2.5
+    min_depth_m: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("epipolar_px", "support_px", "max_residual_px", "min_depth_m"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"CorrespondenceParams.{name}={v!r}: must be a finite number > 0")
+
+
+@dataclass
+class UnlabelledPoints:
+    """Unlabelled 3D points of one frame.
+
+    Attributes
+    ----------
+    xyz : (N, 3) float
+        Metres, world frame.
+    detection_index : (N, C) int
+        Per camera, the index of the detection each point used, -1 where none.
+    n_views : (N,) int
+    residual_px : (N,) float
+        Mean reprojection residual over the views used (undistorted pixels).
+    ambiguous : (N,) bool
+        Two-view points whose pairing was not unique.
+    """
+
+    xyz: np.ndarray
+    detection_index: np.ndarray
+    n_views: np.ndarray
+    residual_px: np.ndarray
+    ambiguous: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    @classmethod
+    def empty(cls, n_cameras: int) -> "UnlabelledPoints":
+        return cls(np.zeros((0, 3)), np.zeros((0, n_cameras), np.intp), np.zeros(0, np.intp), np.zeros(0), np.zeros(0, bool))
+
+
+def normalised_detections(detections: Sequence[Detections], calibration: Calibration) -> list[np.ndarray]:
+    """Per camera, the detections in undistorted normalised coordinates ``(n_c, 2)``."""
+    return [pixels_to_normalized(cam, d.xy) if len(d) else np.zeros((0, 2)) for d, cam in zip(detections, calibration)]
+
+
+def _pair_geometry(calibration: Calibration) -> dict[tuple[int, int], np.ndarray]:
+    """Essential matrices ``E_ab`` with ``x_b^T E_ab x_a = 0`` for every camera pair ``a < b``."""
+    out = {}
+    for a, ca in enumerate(calibration):
+        for b in range(a + 1, len(calibration)):
+            cb = calibration[b]
+            R = cb.R @ ca.R.T
+            t = cb.t - R @ ca.t
+            tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+            out[(a, b)] = tx @ R
+    return out
+
+
+def _two_view_points(xa: np.ndarray, xb: np.ndarray, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
+    """Batched linear triangulation of ``K`` normalised pairs ``(K, 2)`` -> ``(K, 3)``."""
+    rows = np.stack([
+        xa[:, 0:1] * Pa[2] - Pa[0], xa[:, 1:2] * Pa[2] - Pa[1],
+        xb[:, 0:1] * Pb[2] - Pb[0], xb[:, 1:2] * Pb[2] - Pb[1],
+    ], axis=1)                                                    # (K, 4, 4)
+    M = np.matmul(rows.transpose(0, 2, 1), rows)
+    lhs = M[:, :3, :3] + 1e-12 * np.eye(3)
+    return np.linalg.solve(lhs, -M[:, :3, 3:4])[..., 0]
+
+
+def reconstruct_unlabelled(
+    detections: Sequence[Detections],
+    calibration: Calibration,
+    params: CorrespondenceParams | None = None,
+    normalised: list[np.ndarray] | None = None,
+) -> UnlabelledPoints:
+    """Unlabelled 3D points of one frame from every camera's unlabelled detections.
+
+    Parameters
+    ----------
+    detections : C Detections, in calibration order
+    calibration : Calibration
+    params : CorrespondenceParams, optional
+    normalised : per camera ``(n_c, 2)`` undistorted normalised detections, optional
+        (computed when not given).
+
+    Returns
+    -------
+    UnlabelledPoints
+    """
+    p = params or CorrespondenceParams()
+    C = len(calibration)
+    xs = normalised if normalised is not None else normalised_detections(detections, calibration)
+    focal = np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in calibration])
+    Ps = [np.hstack([c.R, c.t[:, None]]) for c in calibration]
+    trees = [cKDTree(x) if len(x) else None for x in xs]
+
+    cand_a, cand_b, cand_ia, cand_ib, cand_d, cand_amb = [], [], [], [], [], []
+    for (a, b), E in _pair_geometry(calibration).items():
+        if len(xs[a]) == 0 or len(xs[b]) == 0:
+            continue
+        ha = np.column_stack([xs[a], np.ones(len(xs[a]))])     # (na, 3)
+        hb = np.column_stack([xs[b], np.ones(len(xs[b]))])     # (nb, 3)
+        lb = ha @ E.T                                           # epipolar lines in b, (na, 3)
+        la = hb @ E                                             # epipolar lines in a, (nb, 3)
+        alg = hb @ lb.T                                         # (nb, na): x_b^T E x_a
+        db = np.abs(alg) / np.hypot(lb[:, 0], lb[:, 1])[None, :] * focal[b]
+        da = np.abs(alg) / np.hypot(la[:, 0], la[:, 1])[:, None] * focal[a]
+        d = np.maximum(da, db)                                   # (nb, na) pixels
+        ib, ia = np.nonzero(d < p.epipolar_px)
+        if ia.size == 0:
+            continue
+        n_in_b = np.bincount(ia, minlength=len(xs[a]))           # candidates of each a-detection
+        n_in_a = np.bincount(ib, minlength=len(xs[b]))
+        cand_a.append(np.full(ia.size, a))
+        cand_b.append(np.full(ia.size, b))
+        cand_ia.append(ia)
+        cand_ib.append(ib)
+        cand_d.append(d[ib, ia])
+        cand_amb.append((n_in_b[ia] > 1) | (n_in_a[ib] > 1))
+    if not cand_a:
+        return UnlabelledPoints.empty(C)
+    ca, cb = np.concatenate(cand_a), np.concatenate(cand_b)
+    ia, ib = np.concatenate(cand_ia), np.concatenate(cand_ib)
+    dist, amb = np.concatenate(cand_d), np.concatenate(cand_amb)
+    K = ca.size
+
+    # Two-view points of every candidate, then support from every camera.
+    X = np.empty((K, 3))
+    for a in range(C):
+        for b in range(a + 1, C):
+            sel = (ca == a) & (cb == b)
+            if sel.any():
+                X[sel] = _two_view_points(xs[a][ia[sel]], xs[b][ib[sel]], Ps[a], Ps[b])
+    views = np.full((K, C), -1, dtype=np.intp)
+    views[np.arange(K), ca] = ia
+    views[np.arange(K), cb] = ib
+    depth_ok = np.ones(K, bool)
+    for c, cam in enumerate(calibration):
+        z = X @ cam.R[2] + cam.t[2]
+        base = (ca == c) | (cb == c)
+        depth_ok &= ~base | (z > p.min_depth_m)
+        if trees[c] is None:
+            continue
+        other = ~base & (z > p.min_depth_m)
+        if not other.any():
+            continue
+        pc = X[other] @ cam.R.T + cam.t
+        uv = pc[:, :2] / pc[:, 2:3]
+        dd, ii = trees[c].query(uv, distance_upper_bound=p.support_px / focal[c])
+        hit = np.isfinite(dd)
+        rows = np.flatnonzero(other)[hit]
+        views[rows, c] = ii[hit]
+    n_views = (views >= 0).sum(axis=1)
+    order = np.lexsort((dist, -n_views))
+    order = order[depth_ok[order]]
+
+    used = [np.zeros(len(x), bool) for x in xs]
+    accepted: list[np.ndarray] = []
+    accepted_amb: list[bool] = []
+    for k in order:
+        a, b = ca[k], cb[k]
+        if used[a][ia[k]] or used[b][ib[k]]:
+            continue
+        v = views[k].copy()
+        for c in range(C):
+            if v[c] >= 0 and used[c][v[c]]:
+                v[c] = -1
+        for c in range(C):
+            if v[c] >= 0:
+                used[c][v[c]] = True
+        accepted.append(v)
+        accepted_amb.append(bool(amb[k]) and int((v >= 0).sum()) == 2)
+    if not accepted:
+        return UnlabelledPoints.empty(C)
+    det_index = np.array(accepted, dtype=np.intp)                # (N, C)
+    N = len(det_index)
+    obs = np.full((C, N, 2), np.nan)
+    for c in range(C):
+        ok = det_index[:, c] >= 0
+        obs[c, ok] = xs[c][det_index[ok, c]]
+    tri = triangulate_normalized(obs, calibration, max_residual_px=p.max_residual_px)
+    keep = np.isfinite(tri.points).all(axis=1)
+    det_index = np.where(tri.used.T, det_index, -1)
+    return UnlabelledPoints(
+        xyz=tri.points[keep],
+        detection_index=det_index[keep],
+        n_views=tri.n_views[keep].astype(np.intp),
+        residual_px=tri.residual_px[keep],
+        ambiguous=np.array(accepted_amb, bool)[keep],
+    )
