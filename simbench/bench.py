@@ -81,6 +81,10 @@ class Bench:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> "Bench":
+        if scenario.motion.c3d or scenario.motion.trc:  # a real capture's markers, no humanoid
+            from simbench.scenes.capture_scene import CaptureBench
+
+            return CaptureBench.from_capture_scenario(scenario)
         params = body_params(scenario)
         rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0xB0D7]))
         marker_set = None if scenario.subject.markers == "none" else scenario.subject.markers
@@ -121,3 +125,8 @@ class Bench:
     @property
     def hinge_names(self) -> list[str]:
         return list(HINGE_NAMES)
+
+    def capture_reference(self):
+        """A capture scenario's labelled reference trajectories
+        (:class:`~simbench.scenes.capture_motion.CaptureReference`); None for a humanoid scenario."""
+        return None

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_serializer, model_validator
 
 from simbench.errors import ScenarioError
 
@@ -39,17 +39,63 @@ class SubjectConfig(_Model):
     skin_rgb: Vec3 = (0.55, 0.38, 0.30)
 
 
+class CaptureGapsConfig(_Model):
+    """Artificial gaps cut into a real capture (``motion.c3d`` / ``motion.trc``), seeded by ``seed``:
+    ``fraction`` of the markers each lose ``runs`` runs of ``min_frames``..``max_frames``
+    rendered frames (a marker in a gap is not rendered and is absent from the ground truth)."""
+
+    fraction: float = Field(0.2, gt=0.0, le=1.0, description="fraction of the markers that get gaps")
+    min_frames: int = Field(2, ge=1, description="shortest gap, in frames at the scenario's fps")
+    max_frames: int = Field(70, ge=1, description="longest gap, in frames at the scenario's fps")
+    runs: int = Field(1, ge=1, le=50, description="gaps per chosen marker (they never touch)")
+
+    @model_validator(mode="after")
+    def _lengths(self):
+        if self.min_frames > self.max_frames:
+            raise ValueError(f"min_frames = {self.min_frames} exceeds max_frames = {self.max_frames}")
+        return self
+
+
+_CAPTURE_FIELDS = {"c3d": None, "trc": None, "labels": None, "up_axis": "auto", "gaps": None}
+
+
 class MotionConfig(_Model):
     clip: str = Field("wave_slow", description="procedural clip name, or 'bvh' to load `bvh`")
     bvh: str | None = Field(None, description="BVH file (relative to the scenario file)")
-    start_s: float = Field(0.0, ge=0.0, description="offset into the clip")
+    start_s: float = Field(0.0, ge=0.0, description="offset into the clip (or the capture)")
     speed: float = Field(1.0, gt=0.0, le=10.0)
+    c3d: str | None = Field(None, description="real capture (relative to the scenario file): its physical markers are "
+                                              "rendered as marker spheres and are the ground truth; no humanoid")
+    trc: str | None = Field(None, description="as c3d, from a TRC file")
+    labels: tuple[str, ...] | None = Field(None, description="c3d/trc: the markers to render (default: every physical marker)")
+    up_axis: Literal["auto", "x", "y", "z"] = Field("auto", description="c3d/trc: the file's up axis (auto: from the file)")
+    gaps: CaptureGapsConfig | None = Field(None, description="c3d/trc: seeded artificial gaps")
 
     @model_validator(mode="after")
     def _bvh_needs_path(self):
         if self.clip == "bvh" and not self.bvh:
             raise ValueError("clip = 'bvh' needs `bvh = \"path/to/file.bvh\"`")
+        sources = [k for k in ("bvh", "c3d", "trc") if getattr(self, k)]
+        if len(sources) > 1:
+            raise ValueError(f"give one motion source, not {' and '.join(sources)}")
+        capture = self.c3d or self.trc
+        if capture and "clip" in self.model_fields_set and self.clip not in ("c3d", "trc"):
+            raise ValueError(f"clip = {self.clip!r} conflicts with a capture file; leave clip out")
+        if not capture:
+            extra = [k for k in ("labels", "gaps") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
+            if extra:
+                raise ValueError(f"{', '.join(extra)} apply to a capture file only; give `c3d` or `trc`")
         return self
+
+    @model_serializer(mode="wrap")
+    def _omit_unused_capture_fields(self, handler):
+        # Scenarios without a capture serialise (and hash) as they did before these fields.
+        data = handler(self)
+        if isinstance(data, dict) and not (self.c3d or self.trc):
+            for key, default in _CAPTURE_FIELDS.items():
+                if key in data and data[key] == default:
+                    del data[key]
+        return data
 
 
 class SensorConfig(_Model):
@@ -383,8 +429,9 @@ def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise validation_error_to_scenario_error(path, exc) from None
-    if scenario.motion.bvh:
-        bvh = scenario.resolve_path(scenario.motion.bvh)
-        if not bvh.is_file():
-            raise ScenarioError(path, "motion.bvh", scenario.motion.bvh, f"file not found (looked for {bvh})")
+    for key in ("bvh", "c3d", "trc"):
+        given = getattr(scenario.motion, key)
+        if given and not scenario.resolve_path(given).is_file():
+            shared = "; it is real data from the project's shared/ folder: put shared/ beside the repository" if "shared" in Path(given).parts else ""
+            raise ScenarioError(path, f"motion.{key}", given, f"file not found (looked for {scenario.resolve_path(given)}){shared}")
     return scenario

@@ -1,0 +1,276 @@
+"""A real capture (C3D or TRC) as a scenario's motion: its physical markers, frame by frame.
+
+``[motion] c3d = "FILE"`` (or ``trc``) makes a scenario replay a real capture: the file's
+physical markers (:func:`mocap.exports.read_c3d` sets model outputs, virtual points and
+empty entries aside) become marker spheres, and the capture is the ground truth the run
+is scored against. :func:`load_capture_clip` prepares it:
+
+* **Window**: scenario time ``t`` is capture time ``start_s + speed * t``, capture time
+  counted from the file's first frame. The window must lie inside the capture.
+* **Resampling**: positions at any instant (frame mid-exposure, shutter sub-frames) are
+  linear interpolations of the two file samples around it; if either is missing the
+  marker is missing at that instant (an instant on a file sample uses that sample only).
+* **Placement**: world axes, Z up, metres (the reader converts units and Y-up files). The
+  capture is shifted horizontally, never vertically or rotated, so that the middle of
+  its markers' horizontal extent over the window (at the frame times) is under the
+  rig's ``look_at``: a walk crosses the capture volume.
+* **Selection**: ``labels`` picks markers (default: every physical marker); markers with
+  no sample at any frame time of the window are dropped (named in ``dropped``).
+* **Seeded gaps** (``gaps``): ``round(fraction * M)`` markers, drawn with the scenario's
+  seed, each lose ``runs`` runs of ``min_frames``..``max_frames`` rendered frames, inside
+  the window (never its first or last frame) and never touching each other. A rendered
+  frame ``k`` spans ``[k / fps, (k + 1) / fps)``: every instant of its shutter is in the gap.
+
+Missing samples (the file's or the seeded gaps) are NaN in :meth:`CaptureClip.positions_at`;
+the renderer draws no sphere there and the ground truth has the marker absent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocap.errors import MocapInputError
+from mocap.exports import CaptureTrajectories, read_c3d, read_trc
+from mocap.labelling import LabelTemplate
+from simbench.errors import ScenarioError
+from simbench.scenario import CaptureGapsConfig, Scenario
+
+__all__ = ["CaptureClip", "CaptureReference", "load_capture_clip", "seeded_gaps", "look_at_point"]
+
+_ON_SAMPLE = 1e-9  # an instant within this fraction of a frame of a file sample uses that sample only
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureClip:
+    """A real capture placed in the scene and evaluable at any scenario time.
+
+    Attributes
+    ----------
+    labels : tuple[str, ...], length M
+        The rendered markers, in file order.
+    source_xyz : (N, M, 3) float
+        The file's samples, world metres (Z up, already shifted by ``shift_xy``); NaN missing.
+    rate_hz : float
+        The file's frame rate; sample ``i`` is at capture time ``i / rate_hz``.
+    start_s, speed : float
+        Scenario time ``t`` -> capture time ``start_s + speed * t``.
+    fps : float
+        The scenario's frame rate (frame ``k`` spans ``[k / fps, (k + 1) / fps)``).
+    gap_mask : (F, M) bool
+        True where a seeded gap hides the marker in rendered frame ``k``.
+    shift_xy : (2,) float
+        Horizontal shift applied to the file's positions (metres).
+    path : Path
+    set_aside : dict[str, str]
+        What the reader did not take as physical markers, and why.
+    dropped : tuple[str, ...]
+        Physical markers with no sample in the window (not rendered).
+    source_up_axis, up_axis_reason : str
+        The file's up axis and how it was decided.
+    """
+
+    labels: tuple[str, ...]
+    source_xyz: np.ndarray
+    rate_hz: float
+    start_s: float
+    speed: float
+    fps: float
+    gap_mask: np.ndarray
+    shift_xy: np.ndarray
+    path: Path
+    set_aside: dict[str, str] = field(default_factory=dict)
+    dropped: tuple[str, ...] = ()
+    source_up_axis: str = "z"
+    up_axis_reason: str = ""
+
+    @property
+    def n_markers(self) -> int:
+        return len(self.labels)
+
+    @property
+    def capture_duration_s(self) -> float:
+        return (len(self.source_xyz) - 1) / self.rate_hz
+
+    def file_positions_at(self, times: np.ndarray) -> np.ndarray:
+        """Marker positions ``(T, M, 3)`` at scenario ``times (T,)`` seconds, from the file only
+        (no seeded gaps): linear interpolation, NaN where a sample used is missing."""
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        u = (self.start_s + self.speed * t) * self.rate_hz  # fractional file sample index
+        N = len(self.source_xyz)
+        u = np.clip(u, 0.0, N - 1)
+        i0 = np.floor(u + _ON_SAMPLE).astype(np.int64)
+        i0 = np.minimum(i0, N - 1)
+        w = u - i0
+        on_sample = np.abs(w) <= _ON_SAMPLE
+        i1 = np.where(on_sample, i0, np.minimum(i0 + 1, N - 1))
+        w = np.where(on_sample, 0.0, w)[:, None, None]
+        a, b = self.source_xyz[i0], self.source_xyz[i1]
+        return (1.0 - w) * a + w * b  # NaN propagates: missing if either sample used is missing
+
+    def frame_index(self, times: np.ndarray) -> np.ndarray:
+        """Rendered frame ``k`` of each scenario instant (``floor(t * fps)``, clipped to the window)."""
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        k = np.floor(t * self.fps + 1e-6).astype(np.int64)
+        return np.clip(k, 0, len(self.gap_mask) - 1)
+
+    def positions_at(self, times: np.ndarray) -> np.ndarray:
+        """Marker positions ``(T, M, 3)`` world metres at scenario ``times``: the file's,
+        NaN where it has none and in seeded gaps."""
+        xyz = self.file_positions_at(times)
+        hidden = self.gap_mask[self.frame_index(times)]  # (T, M)
+        xyz[hidden] = np.nan
+        return xyz
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureReference:
+    """What a user's subject calibration gives for a real capture: its labelled trajectories.
+
+    Attributes
+    ----------
+    labels : tuple[str, ...], length M
+    xyz : (F, M, 3) float
+        World metres at the scenario's frame times, NaN where the file has no sample
+        (seeded gaps are not applied: they stand for markers the cameras lose in the take).
+    times : (F,) float
+        Seconds.
+    """
+
+    labels: tuple[str, ...]
+    xyz: np.ndarray
+    times: np.ndarray
+
+    def reference_frame(self) -> int:
+        """The first frame with the most markers present."""
+        return int(np.argmax(np.isfinite(self.xyz).all(axis=2).sum(axis=1)))
+
+    def label_template(self) -> LabelTemplate:
+        """A :class:`~mocap.labelling.LabelTemplate` from the reference frame.
+
+        Subject-local frame as the template wants it: shifted horizontally so the markers'
+        centroid is at the origin (heights kept; the labelling searches every heading). A
+        marker missing in the reference frame takes its position from the nearest frame
+        where it is present, moved by how far the centroid of the markers present in both
+        frames moved (an approximation: the labelling tolerates a few centimetres).
+        """
+        ref = self.reference_frame()
+        present = np.isfinite(self.xyz).all(axis=2)  # (F, M)
+        pos = self.xyz[ref].copy()
+        for m in np.flatnonzero(~present[ref]):
+            frames = np.flatnonzero(present[:, m])
+            f = int(frames[np.argmin(np.abs(frames - ref))])
+            both = present[ref] & present[f]
+            drift = self.xyz[ref, both].mean(axis=0) - self.xyz[f, both].mean(axis=0) if both.any() else np.zeros(3)
+            pos[m] = self.xyz[f, m] + drift
+        pos[:, :2] -= pos[:, :2].mean(axis=0)
+        return LabelTemplate(self.labels, pos)
+
+
+def look_at_point(scenario: Scenario) -> np.ndarray:
+    """The point the cameras aim at: the rig's ``look_at``, else the mean of the cameras'."""
+    if scenario.rig is not None:
+        return np.asarray(scenario.rig.look_at, dtype=np.float64)
+    return np.mean([c.look_at for c in scenario.cameras], axis=0)
+
+
+def seeded_gaps(cfg: CaptureGapsConfig, n_frames: int, n_markers: int, rng: np.random.Generator) -> np.ndarray:
+    """Gap mask ``(n_frames, n_markers)`` bool: ``round(fraction * M)`` markers get ``runs`` runs each.
+
+    The frames ``1 .. n_frames - 2`` are split into ``runs`` equal spans; each run lies in
+    its own span, its length drawn uniformly in ``min_frames .. max_frames`` (at most the
+    span minus one frame, so runs never touch), its start uniformly where it fits.
+    """
+    mask = np.zeros((n_frames, n_markers), dtype=bool)
+    n_chosen = int(round(cfg.fraction * n_markers))
+    span = (n_frames - 2) // cfg.runs
+    if n_chosen == 0 or span < 2:
+        return mask
+    for m in np.sort(rng.choice(n_markers, size=n_chosen, replace=False)):
+        for r in range(cfg.runs):
+            length = min(int(rng.integers(cfg.min_frames, cfg.max_frames + 1)), span - 1)
+            lo = 1 + r * span
+            start = lo + int(rng.integers(0, span - length))  # last start leaves one free frame
+            mask[start : start + length, m] = True
+    return mask
+
+
+def _read(scenario: Scenario) -> tuple[CaptureTrajectories, str, str]:
+    m = scenario.motion
+    key = "c3d" if m.c3d else "trc"
+    given = m.c3d or m.trc
+    path = scenario.resolve_path(given)
+    try:
+        if key == "c3d":
+            traj = read_c3d(path, up_axis=m.up_axis)
+        else:
+            axes = {"auto": "auto", "y": "opensim", "z": "world"}.get(m.up_axis)
+            if axes is None:
+                raise ScenarioError(scenario.source_dir or scenario.name, "motion.up_axis", m.up_axis,
+                                    "a TRC file's up axis is 'auto', 'y' or 'z'")
+            traj = read_trc(path, axes=axes)
+    except MocapInputError as exc:
+        raise ScenarioError(scenario.source_dir or scenario.name, f"motion.{key}", given, f"cannot use it: {exc}") from None
+    return traj, key, given
+
+
+def load_capture_clip(scenario: Scenario) -> CaptureClip:
+    """Read the scenario's capture file and place it for the scenario (see the module doc).
+
+    Raises
+    ------
+    ScenarioError
+        The file cannot be read, a selected label is not a physical marker of the file,
+        the window does not fit in the capture, or no marker has a sample in it.
+    """
+    m = scenario.motion
+    where = scenario.source_dir or scenario.name
+    traj, key, given = _read(scenario)
+    labels = list(traj.labels)
+    if m.labels is not None:
+        for name in m.labels:
+            if name not in labels:
+                why = f" (set aside: {traj.set_aside[name]})" if name in traj.set_aside else ""
+                raise ScenarioError(where, "motion.labels", name,
+                                    f"not a physical marker of {given}{why}; choose from {labels}")
+        if len(set(m.labels)) != len(m.labels):
+            raise ScenarioError(where, "motion.labels", list(m.labels), "each label once")
+        idx = [labels.index(n) for n in labels if n in set(m.labels)]  # file order
+    else:
+        idx = list(range(len(labels)))
+    rate = traj.point_rate_hz
+    xyz = traj.xyz[:, idx]
+    names = [labels[i] for i in idx]
+    capture_s = (len(xyz) - 1) / rate
+    end_s = m.start_s + m.speed * (scenario.duration_s)
+    if end_s > capture_s + 1e-9:
+        raise ScenarioError(where, "duration_s", scenario.duration_s,
+                            f"the window motion.start_s + motion.speed * duration_s = {end_s:.3f} s runs past the end "
+                            f"of {given} ({capture_s:.3f} s of capture at {rate:g} Hz); shorten it or start earlier")
+    F = scenario.n_frames
+    frame_times = scenario.frame_times()
+    provisional = CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, np.zeros((F, len(names)), bool),
+                              np.zeros(2), Path(given))
+    at_frames = provisional.file_positions_at(frame_times)  # (F, M, 3)
+    seen = np.isfinite(at_frames).all(axis=2).any(axis=0)
+    if not seen.any():
+        raise ScenarioError(where, "motion.start_s", m.start_s,
+                            f"no marker of {given} has a sample in the window {m.start_s:g}-{end_s:g} s; move the window")
+    dropped = tuple(n for n, s in zip(names, seen) if not s)
+    keep = np.flatnonzero(seen)
+    xyz, names, at_frames = xyz[:, keep], [names[i] for i in keep], at_frames[:, keep]
+    lo = np.nanmin(at_frames[..., :2].reshape(-1, 2), axis=0)
+    hi = np.nanmax(at_frames[..., :2].reshape(-1, 2), axis=0)
+    shift = look_at_point(scenario)[:2] - 0.5 * (lo + hi)
+    xyz = xyz.copy()
+    xyz[..., :2] += shift
+    if m.gaps is not None:
+        rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x6A95]))
+        gap_mask = seeded_gaps(m.gaps, F, len(names), rng)
+    else:
+        gap_mask = np.zeros((F, len(names)), dtype=bool)
+    return CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, gap_mask, shift, Path(given),
+                       set_aside=dict(traj.set_aside), dropped=dropped, source_up_axis=traj.source_up_axis,
+                       up_axis_reason=traj.up_axis_reason)

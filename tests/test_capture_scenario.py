@@ -1,0 +1,238 @@
+"""Real captures as scenarios (``[motion] c3d`` / ``trc``): the rendered ground truth is the
+capture (resampled, recentred), absent samples are absent markers, marker blobs sit on the
+projections, and seeded gaps are reproducible with the requested fraction and lengths."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import ezc3d
+import numpy as np
+import pytest
+
+from mocap.exports import write_c3d
+from mocap.types import Trajectories
+from simbench.bench import Bench
+from simbench.errors import ScenarioError
+from simbench.render import ids as idc
+from simbench.rendering import render_frames
+from simbench.scenario import CaptureGapsConfig, load_scenario
+from simbench.scenes.capture_motion import load_capture_clip, seeded_gaps
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+QUALISYS = DATA / "c3d" / "Qualisys.c3d"
+pytestmark = pytest.mark.skipif(not QUALISYS.is_file(), reason=f"shared real data not found at {DATA}")
+
+RIG = """
+[sensor]
+mode = "ir"
+exposure_ms = 2.0
+motion_blur = false
+shot_noise = false
+read_noise_e = 0.0
+
+[rig]
+count = 4
+radius_m = 3.0
+height_m = 2.3
+look_at = [0.3, -0.2, 0.9]
+hfov_deg = 50.0
+"""
+
+
+def _scenario(tmp_path: Path, motion: str, head: str = "", name: str = "cap"):
+    p = tmp_path / f"{name}.toml"
+    p.write_text(f'name = "{name}"\n{head}\n[motion]\n{motion}\n{RIG}')
+    return load_scenario(p)
+
+
+def _raw_qualisys_m() -> tuple[list[str], np.ndarray, float]:
+    c = ezc3d.c3d(str(QUALISYS))
+    labels = [s.strip() for s in c["parameters"]["POINT"]["LABELS"]["value"]]
+    return labels, c["data"]["points"][:3].transpose(2, 1, 0) / 1000.0, float(c["parameters"]["POINT"]["RATE"]["value"][0])
+
+
+@pytest.fixture(scope="module")
+def qualisys_render(tmp_path_factory):
+    """12 frames at 100 fps from 0.5 s into Qualisys.c3d, 4 cameras, seeded gaps of 2-4 frames in 20 % of the markers."""
+    sc = _scenario(tmp_path_factory.mktemp("q"), f'c3d = "{QUALISYS}"\nstart_s = 0.5\n'
+                   "gaps = { fraction = 0.2, min_frames = 2, max_frames = 4 }", "seed = 5\nfps = 100.0\nduration_s = 0.12")
+    bench = Bench.from_scenario(sc)
+    seq = render_frames(bench, keep_frames=True, keep_ids=True)
+    return sc, bench, seq
+
+
+def test_ground_truth_is_the_capture_resampled_and_recentred(qualisys_render):
+    sc, bench, seq = qualisys_render
+    gt = seq.ground_truth
+    labels, raw, rate = _raw_qualisys_m()
+    assert gt.marker_names == labels and gt.n_frames == 12
+    # Independent resampling: per-coordinate linear interpolation of the file at capture
+    # time start_s + t (the file has no gaps), then the horizontal shift that puts the
+    # middle of the window's extent under the rig's look_at.
+    u = 0.5 + gt.times
+    src_t = np.arange(len(raw)) / rate
+    expected = np.stack([np.stack([np.interp(u, src_t, raw[:, m, a]) for a in range(3)], -1)
+                         for m in range(len(labels))], axis=1)  # (F, M, 3)
+    mid = 0.5 * (expected[..., :2].reshape(-1, 2).min(0) + expected[..., :2].reshape(-1, 2).max(0))
+    expected[..., :2] += np.array([0.3, -0.2]) - mid
+    gaps = bench.clip.gap_mask
+    assert gaps.any(axis=0).sum() == round(0.2 * 55)
+    absent = np.isnan(gt.markers_3d).any(axis=2)
+    np.testing.assert_array_equal(absent, gaps)  # the file has no gaps: only the seeded ones
+    np.testing.assert_allclose(gt.markers_3d[~absent], expected[~absent], atol=1e-12)
+    np.testing.assert_allclose(bench.clip.shift_xy, np.array([0.3, -0.2]) - mid)
+    # No humanoid: its qpos and joint centres are absent from the truth.
+    assert np.isnan(gt.qpos).all() and np.isnan(gt.joint_centres).all()
+    # The reference a subject calibration gives: the file, without the seeded gaps.
+    ref = bench.capture_reference()
+    assert ref.labels == tuple(labels)
+    np.testing.assert_allclose(ref.xyz, expected, atol=1e-12)
+
+
+def test_absent_samples_are_not_rendered(qualisys_render):
+    sc, bench, seq = qualisys_render
+    gt = seq.ground_truth
+    absent = np.isnan(gt.markers_3d).any(axis=2)  # (F, M)
+    assert absent.sum() >= 11 * 2
+    for c, name in enumerate(gt.camera_names):
+        ids = gt.id_maps[name].astype(np.int64) - idc.MARKER_BASE  # (F, H, W)
+        for f in range(gt.n_frames):
+            counts = np.bincount(ids[f][ids[f] >= 0], minlength=len(gt.marker_names))
+            assert (counts[absent[f]] == 0).all(), f"absent marker drawn in {name} frame {f}"
+            assert not gt.marker_visible[f, c, absent[f]].any()
+            assert (gt.marker_visible_frac[f, c, absent[f]] == 0).all()
+    # The others are seen: most markers by at least two of the four cameras.
+    seen2 = gt.marker_visible.sum(axis=1) >= 2
+    assert seen2[~absent].mean() > 0.8
+
+
+def _blob_centroid(image: np.ndarray, id_map: np.ndarray, marker: int) -> tuple[float, float] | None:
+    """Intensity centroid of one marker's blob (as tests/test_render_markers.py): its
+    id-map pixels grown by one pixel, minus pixels near other markers, background removed."""
+    own = (id_map == idc.MARKER_BASE + marker).astype(np.uint8)
+    if own.sum() == 0:
+        return None
+    grown = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
+    other = (id_map >= idc.MARKER_BASE) & (id_map != idc.MARKER_BASE + marker)
+    mask = grown & ~cv2.dilate(other.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return None
+    grey = image[..., 0].astype(float)
+    bg = np.median(grey[max(ys.min() - 6, 0): ys.max() + 7, max(xs.min() - 6, 0): xs.max() + 7])
+    w = np.clip(grey[ys, xs] - bg, 0, None)
+    if w.sum() <= 0:
+        return None
+    return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
+
+
+def test_marker_blobs_sit_on_the_projections(qualisys_render):
+    """cv2.projectPoints of every visible capture marker vs its blob's intensity centroid."""
+    sc, bench, seq = qualisys_render
+    gt = seq.ground_truth
+    cal = gt.calibration()
+    errors = []
+    for f in range(gt.n_frames):
+        for c, cam in enumerate(cal):
+            for m in np.flatnonzero(gt.marker_visible[f, c]):
+                uv, _ = cv2.projectPoints(gt.markers_3d[f, m][None], cam.rvec, cam.t, cam.K, cam.dist)
+                cen = _blob_centroid(seq.frames[f, c], gt.id_maps[cam.name][f], m)
+                assert cen is not None, f"visible marker {gt.marker_names[m]} has no blob in {cam.name} frame {f}"
+                errors.append(np.hypot(*(np.array(cen) - uv.ravel())))
+    errors = np.array(errors)
+    print(f"\nQualisys markers vs blob centroids over {len(errors)} blobs: median {np.median(errors):.3f} px, "
+          f"95th pct {np.percentile(errors, 95):.3f} px")
+    assert len(errors) > 1000
+    assert np.median(errors) <= 0.25 and np.percentile(errors, 95) <= 0.5
+
+
+def test_seeded_gaps_fraction_lengths_and_reproducibility(tmp_path):
+    """The whole Qualisys trial at its own 200 Hz: 20 % of 55 markers lose runs of 2-70 frames."""
+    motion = f'c3d = "{QUALISYS}"\ngaps = {{ fraction = 0.2, min_frames = 2, max_frames = 70, runs = 2 }}'
+    head = "fps = 200.0\nduration_s = 1.69"
+    a = load_capture_clip(_scenario(tmp_path, motion, head + "\nseed = 11", "a"))
+    again = load_capture_clip(_scenario(tmp_path, motion, head + "\nseed = 11", "a2"))
+    other = load_capture_clip(_scenario(tmp_path, motion, head + "\nseed = 12", "b"))
+    np.testing.assert_array_equal(a.gap_mask, again.gap_mask)
+    assert not np.array_equal(a.gap_mask, other.gap_mask)
+    F, M = a.gap_mask.shape
+    assert (F, M) == (338, 55)
+    for mask in (a.gap_mask, other.gap_mask):
+        chosen = np.flatnonzero(mask.any(axis=0))
+        assert len(chosen) == 11
+        assert not mask[0].any() and not mask[-1].any()  # inside the window: real gaps
+        lengths = []
+        for m in chosen:
+            padded = np.concatenate([[False], mask[:, m], [False]]).astype(np.int8)
+            starts, ends = np.flatnonzero(np.diff(padded) == 1), np.flatnonzero(np.diff(padded) == -1)
+            assert len(starts) == 2  # two runs, never touching
+            lengths += list(ends - starts)
+        assert min(lengths) >= 2 and max(lengths) <= 70
+        assert max(lengths) > 30  # drawn over the range, not stuck at one end
+    # Positions in a gap are NaN, elsewhere the file's.
+    times = (np.arange(F) + 0.5 * 2.0 / 1000 * 200) / 200.0
+    xyz = a.positions_at(times)
+    np.testing.assert_array_equal(np.isnan(xyz).any(axis=2), a.gap_mask)
+
+
+def test_seeded_gaps_directly():
+    rng = np.random.default_rng(0)
+    mask = seeded_gaps(CaptureGapsConfig(fraction=0.5, min_frames=3, max_frames=3, runs=3), 100, 10, rng)
+    assert mask.any(axis=0).sum() == 5 and (mask.sum(axis=0)[mask.any(axis=0)] == 9).all()
+    assert not seeded_gaps(CaptureGapsConfig(fraction=0.01), 100, 10, rng).any()  # round(0.1) = 0 markers
+
+
+def test_resampling_missing_if_a_neighbour_used_is_missing(tmp_path):
+    """A 100 Hz file with one missing sample, rendered at 50 fps with the shutter between samples."""
+    t = np.arange(40) / 100.0
+    xyz = np.zeros((40, 2, 3))
+    xyz[:, 0] = [1.0, 0.0, 1.0]
+    xyz[:, 1, 0] = t  # moves 1 m/s along X
+    xyz[:, 1, 2] = 0.5
+    xyz[10, 1] = np.nan
+    path = write_c3d(tmp_path / "syn.c3d", Trajectories(["A", "B"], xyz, t), rate_hz=100.0)
+    sc = _scenario(tmp_path, f'c3d = "{path.name}"', "fps = 50.0\nduration_s = 0.3")
+    clip = load_capture_clip(sc)
+    # Exactly on a sample: that sample only, so the neighbours of the gap are present.
+    on = clip.file_positions_at(np.array([0.09, 0.10, 0.11]))
+    assert np.isfinite(on[0, 1]).all() and np.isnan(on[1, 1]).all() and np.isfinite(on[2, 1]).all()
+    # Between samples: missing if either neighbour is.
+    between = clip.file_positions_at(np.array([0.095, 0.105, 0.115, 0.125]))
+    assert np.isnan(between[:2, 1]).all() and np.isfinite(between[2:, 1]).all()
+    np.testing.assert_allclose(between[2:, 1, 0] - clip.shift_xy[0], [0.115, 0.125], atol=1e-12)
+    assert np.isfinite(between[:, 0]).all()
+    # The scenario's frames (mid-exposure 1 ms after k / 50 s) fall between samples 2k and 2k + 1.
+    frames = clip.positions_at(sc.frame_times())
+    assert np.isnan(frames[5, 1]).all() and np.isfinite(np.delete(frames[:, 1], 5, axis=0)).all()
+
+
+def test_trc_scenario_y_up_to_z_up(tmp_path):
+    ballet = DATA / "trc" / "ballet_reduced.trc"
+    sc = _scenario(tmp_path, f'trc = "{ballet}"\nlabels = ["LFHD", "LTOE", "RFHD"]', "fps = 30.0\nduration_s = 1.0")
+    clip = load_capture_clip(sc)
+    assert clip.labels == ("RFHD", "LTOE", "LFHD")  # file order
+    assert clip.source_up_axis == "y"
+    z = clip.positions_at(sc.frame_times())[..., 2]
+    assert z[:, 0].min() > 1.4 and z[:, 1].max() < 0.3
+
+
+def test_user_errors_name_the_field(tmp_path):
+    with pytest.raises(ScenarioError, match=r"motion.labels.*L_NOPE.*choose from"):
+        load_capture_clip(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nlabels = ["L_IAS", "L_NOPE"]'))
+    with pytest.raises(ScenarioError, match=r"duration_s.*runs past the end.*1.695 s"):
+        load_capture_clip(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 1.0', "duration_s = 1.0"))
+    walking2 = DATA / "c3d" / "walking2.c3d"
+    with pytest.raises(ScenarioError, match=r"motion.labels.*LAJC.*set aside: model output: joint centre"):
+        load_capture_clip(_scenario(tmp_path, f'c3d = "{walking2}"\nlabels = ["LAJC"]'))
+    p = tmp_path / "gone.toml"
+    p.write_text('name = "gone"\n[motion]\nc3d = "../../shared/nowhere/X.c3d"\n')
+    with pytest.raises(ScenarioError, match=r"motion.c3d.*file not found.*put shared/ beside the repository"):
+        load_scenario(p)
+    p.write_text('name = "both"\n[motion]\nc3d = "a.c3d"\nbvh = "b.bvh"\n')
+    with pytest.raises(ScenarioError, match=r"one motion source"):
+        load_scenario(p)
+    p.write_text('name = "g"\n[motion]\ngaps = { fraction = 0.2 }\n')
+    with pytest.raises(ScenarioError, match=r"capture file only"):
+        load_scenario(p)
