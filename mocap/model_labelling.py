@@ -277,8 +277,14 @@ class SkeletonMarkerModel:
         self._p0 = p0
 
     # -------------------------------------------------------------- kinematics
+    # A state is ``(q, v)`` concatenated: the configuration (nq) and its change over the last
+    # frame as a tangent vector (nv), for a constant-velocity prediction of the next frame.
     def markers(self, state: np.ndarray) -> np.ndarray:
-        return self.solver.marker_positions(state)
+        return self.solver.marker_positions(state[: self.solver.nq])
+
+    def _state(self, q: np.ndarray, q_prev: np.ndarray | None = None) -> np.ndarray:
+        v = np.zeros(self.solver.model.nv) if q_prev is None else pin.difference(self.solver.model, q_prev, q)
+        return np.concatenate([q, v])
 
     def _fit(self, q0: np.ndarray, obs: np.ndarray, ok: np.ndarray, iterations: int, prior: np.ndarray | None = None) -> tuple[np.ndarray, float]:
         if ok.sum() < 3:
@@ -467,7 +473,7 @@ class SkeletonMarkerModel:
             q, idx = self._refine(q, points, (0.08, 0.04, 0.02, 0.015), 60)
             score = self._score(q, points, idx)
             if score > best[2]:
-                best = (q, idx, score)
+                best = (self._state(q), idx, score)
         return best
 
     def _score(self, q: np.ndarray, points: np.ndarray, idx: np.ndarray) -> float:
@@ -481,12 +487,77 @@ class SkeletonMarkerModel:
     # -------------------------------------------------------------- tracking
     def track(self, points: np.ndarray, trusted: np.ndarray, state: np.ndarray, previous: Sequence[np.ndarray],
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
-        q_prev = state
-        model_pred = self.markers(q_prev)
-        pred = _constant_velocity(model_pred, previous)
-        q, idx = self._refine(q_prev, points, (gates[0], gates[1]), self.solver.params.max_iterations,
-                              prior=q_prev[7:], pred=pred, trusted=trusted)
-        return q, idx, self._score(q, points, idx)
+        nq = self.solver.nq
+        q_prev, v_prev = state[:nq], state[nq:]
+        q_pred = pin.integrate(self.solver.model, q_prev, v_prev)
+        q_pred[7:] = np.clip(q_pred[7:], self.solver._hinge_lower, self.solver._hinge_upper)
+        pred = _constant_velocity(self.markers(np.concatenate([q_pred, v_prev])), previous)
+        q, idx = self._refine(q_pred, points, (gates[0], gates[1]), self.solver.params.max_iterations,
+                              prior=q_pred[7:], pred=pred, trusted=trusted)
+        q, idx = self._recover_limbs(q, idx, points, trusted, gates)
+        return self._state(q, q_prev), idx, self._score(q, points, idx)
+
+    def _limbs(self) -> list[tuple[int, int, np.ndarray]]:
+        """Limb chains ``(b, c, markers)``: a three-hinge body, its one-hinge child, and the markers
+        of both and of the child's descendants (shoulder-elbow-hand, hip-knee-foot)."""
+        if not hasattr(self, "_limb_cache"):
+            cs = self._tables
+            n_b = len(cs.parent)
+            out = []
+            for b in range(1, n_b):
+                kids = np.flatnonzero(cs.parent == b)
+                if len(cs.hinge_slice[b]) == 3 and len(kids) == 1 and len(cs.hinge_slice[kids[0]]) == 1:
+                    c = int(kids[0])
+                    sub = {b, c}
+                    for d in range(n_b):  # descendants of c
+                        a = d
+                        while a > 0 and a not in (c,):
+                            a = cs.parent[a]
+                        if a == c:
+                            sub.add(d)
+                    mask = np.zeros(len(self.labels), bool)
+                    for d in sub:
+                        mask |= cs.own_markers[d]
+                    out.append((b, c, mask))
+            self._limb_cache = out
+        return self._limb_cache
+
+    def _recover_limbs(self, q: np.ndarray, idx: np.ndarray, points: np.ndarray, trusted: np.ndarray,
+                       gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """A limb that lost markers while unlabelled points lie within its reach is searched again
+        (grid over its hinges on the unlabelled points, the rest of the body fixed); the result is
+        kept if the whole frame then explains more points."""
+        cs = self._tables
+        free = trusted.copy()
+        free[idx[idx >= 0]] = False
+        if not free.any():
+            return q, idx
+        best_n = int((idx >= 0).sum())
+        for b, c, mask in self._limbs():
+            if (idx[mask] >= 0).all():
+                continue
+            pin.framesForwardKinematics(self.solver.model, self.solver.data, q)
+            par = cs.parent[b]
+            R_par = np.array(self.solver.data.oMf[self.solver._body_frames[par]].rotation)
+            t_par = np.array(self.solver.data.oMf[self.solver._body_frames[par]].translation)
+            R_p = R_par @ cs.rest_R[b]
+            t_b = t_par + R_par @ cs.rest_t[b]
+            reach = np.linalg.norm(points - t_b, axis=1) < 1.2
+            cand = (free | np.isin(np.arange(len(points)), idx[mask & (idx >= 0)])) & reach
+            if cand.sum() < 2 or not (free & reach).any():
+                continue
+            g_vals, h_vals = self._pair_search(b, c, R_p, t_b, cKDTree(points[cand]))
+            q_try = q.copy()
+            q_try[7 + cs.hinge_slice[b]] = g_vals
+            q_try[7 + cs.hinge_slice[c]] = h_vals
+            q_try, idx_try = self._refine(q_try, points, (gates[0], gates[1], gates[1]), self.solver.params.max_iterations,
+                                          prior=q_try[7:], trusted=trusted)
+            n_try = int((idx_try >= 0).sum())
+            if n_try > best_n:
+                q, idx, best_n = q_try, idx_try, n_try
+                free = trusted.copy()
+                free[idx[idx >= 0]] = False
+        return q, idx
 
 
 class ClusterMarkerModel:
