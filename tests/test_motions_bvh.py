@@ -176,7 +176,7 @@ def test_prefixed_names_map_like_plain_ones_and_unknown_skeletons_fail_clearly(t
 def test_inserted_t_pose_is_detected_and_skipped(walk, jacks):
     assert jacks[1].frames[0] == 1  # converter T-pose in frame 0
     assert walk[1].frames[0] == 0  # 131_01's frame 0 is a captured frame
-    forced = retarget_bvh_keys(load_bvh(WALK), PARAMS, skip_first_frame=True)
+    forced = retarget_bvh_keys(load_bvh(WALK), PARAMS, skip_frames=1)
     assert forced.frames[0] == 1 and len(forced.frames) == 993
 
 
@@ -343,7 +343,7 @@ def test_our_own_humanoid_written_as_bvh_retargets_onto_itself(tmp_path, clip):
     qpos = make_motion(clip, PARAMS, 3.0).qpos(times)
     keys = retarget_bvh_keys(
         load_bvh(_humanoid_bvh(tmp_path / "own.bvh", HumanoidKinematics(PARAMS), times, qpos)),
-        PARAMS, up_axis="z", face_plus_x=False, center_xy=False, skip_first_frame=False,
+        PARAMS, up_axis="z", face_plus_x=False, center_xy=False, skip_frames=0, foot_contact=False,
     )
     assert keys.joint_map == {b: b for b in BODY_NAMES}
     assert keys.scale_m_per_unit == pytest.approx(0.01, rel=1e-9)

@@ -25,9 +25,18 @@ Retargeting, in short
 3. Every frame, each body's target world rotation is the BVH joint's rotation since the
    reference, applied to that aligned body; trunk and neck hinges follow by XYZ decomposition
    relative to the realised parent; limbs are solved so that both segments point along the
-   BVH bones (the 1-DoF elbow/knee picks the upper segment's twist), hands and feet take the
-   two wrist/ankle hinges that keep their long axis; everything is clamped to the ranges.
-4. Root: hip-joint midpoint, scaled, Y-up to Z-up, turned to face +X, floor at z = 0.
+   BVH bones (the 1-DoF elbow/knee picks the upper segment's twist), hands take the two
+   wrist hinges that keep their long axis, feet the two ankle hinges that keep their sole's
+   normal, the foot's target being the source's ankle -> toe bone kept level across
+   (:func:`_level_foot`); everything is clamped to the ranges.
+4. Root: hip-joint midpoint, scaled, Y-up to Z-up, turned to face +X; its height then puts
+   our lowest sole point, frame by frame, where the source's lowest foot point is above the
+   floor (each foot point measured from its own floor-contact height), never below z = 0.
+   Where our joint ranges cannot follow the source (e.g. an ankle at its dorsiflexion limit
+   in a deep crouch) the foot stands on its toe corner and the root rises accordingly.
+
+The converter's lead-in (CMU conversions: a T-pose in frame 0; Daz/Poser-friendly ones: a few
+transition frames after it) is detected and dropped (:func:`converter_lead_in`).
 
 A BVH written from our own humanoid (our body names, T-pose rest) retargets onto itself
 exactly (``tests/test_motions_bvh.py``).
@@ -52,6 +61,7 @@ __all__ = [
     "BvhPose",
     "RetargetedBvh",
     "ROLE_ALIASES",
+    "converter_lead_in",
     "load_bvh",
     "map_bvh_joints",
     "retarget_bvh",
@@ -543,6 +553,16 @@ _AXIS_LETTER = "XYZ"
 # upper segment's twist follows the BVH rotation; above sin(20 deg) it follows the bend plane.
 _BEND_SIN_LO, _BEND_SIN_HI = np.sin(np.deg2rad(5.0)), np.sin(np.deg2rad(20.0))
 
+# Converter lead-in (converter_lead_in): an inserted frame 0 turns some joint by more than
+# 20 deg towards frame 1; the transition after it is searched within the first 0.1 s.
+_TPOSE_STEP_DEG = 20.0
+_TRANSITION_STEP_DEG = 3.0
+_LEAD_IN_S = 0.1
+
+# Floor contact: a foot point's height when its foot is on the floor is its 5th percentile
+# over the clip (every clip has its feet on the floor for far more than 5 % of its frames).
+_CONTACT_PERCENTILE = 5.0
+
 
 def _normalise_name(name: str) -> str:
     base = name.rsplit(":", 1)[-1]
@@ -569,7 +589,16 @@ class RetargetedBvh:
     world_from_file : (3, 3) float
         Rotation from BVH axes to the bench world (Y-up to Z-up and the heading turn).
     translation_m : (3,) float
-        Offset added after scaling and rotating: ``world = scale * world_from_file @ p + translation``.
+        Offset added after scaling and rotating: ``world = scale * world_from_file @ p + translation``
+        (:meth:`to_world`); its z puts the source's lowest foot-contact height on the floor.
+    root_lift_m : (K,) float
+        Height added to each key's root on top of the source's hip midpoint brought into the
+        world (:meth:`to_world`), metres: what puts our soles where the source's feet are.
+    source_foot_height_m : (K,) float
+        Height of the source's feet above the floor per key, metres: the lowest of its foot
+        points (foot joints, toes, End Sites), each measured from its own floor-contact
+        height (its 5th percentile over the clip).  Negative where the source's feet go below
+        their contact height.
     kinematics : HumanoidKinematics
     """
 
@@ -581,6 +610,8 @@ class RetargetedBvh:
     scale_m_per_unit: float
     world_from_file: np.ndarray
     translation_m: np.ndarray
+    root_lift_m: np.ndarray
+    source_foot_height_m: np.ndarray
     kinematics: HumanoidKinematics
 
     def to_world(self, points: np.ndarray) -> np.ndarray:
@@ -599,7 +630,9 @@ def map_bvh_joints(clip: BvhClip, name_map: Mapping[str, str] | None = None) -> 
     ----------
     clip : BvhClip
     name_map : mapping, optional
-        Overrides: humanoid body name (e.g. ``"upperarm_l"``) -> BVH joint name.
+        Overrides: humanoid body name (e.g. ``"upperarm_l"``) -> BVH joint name.  ``pelvis``
+        follows the ROOT unless overridden (files whose ROOT is a reference node above the hips).
+        In a scenario this is ``motion.name_map``.
 
     Raises
     ------
@@ -613,13 +646,14 @@ def map_bvh_joints(clip: BvhClip, name_map: Mapping[str, str] | None = None) -> 
     unknown = sorted(set(overrides) - set(_ROLES))
     if unknown:
         raise InputFileError(clip.path, f"name_map has unknown humanoid bodies {unknown}", f"use keys among: {', '.join(_ROLES)}")
-    mapping = {"pelvis": clip.joint_names[0]}
+    for role, joint in overrides.items():
+        if joint not in clip.joint_names:
+            raise InputFileError(clip.path, f"name_map['{role}'] = '{joint}' is not a joint of the file",
+                                 f"use one of: {', '.join(clip.joint_names)}")
+    mapping = {"pelvis": overrides.get("pelvis", clip.joint_names[0])}
     missing = []
     for role in _ROLES[1:]:
         if role in overrides:
-            if overrides[role] not in clip.joint_names:
-                raise InputFileError(clip.path, f"name_map['{role}'] = '{overrides[role]}' is not a joint of the file",
-                                     f"use one of: {', '.join(clip.joint_names)}")
             mapping[role] = overrides[role]
             continue
         taken = set(mapping.values())
@@ -633,7 +667,8 @@ def map_bvh_joints(clip: BvhClip, name_map: Mapping[str, str] | None = None) -> 
         raise InputFileError(
             clip.path,
             f"no joint found for humanoid bodies {missing} (file joints: {', '.join(clip.joint_names)})",
-            "pass name_map={body: joint} for them; accepted names are in simbench.scenes.bvh.ROLE_ALIASES",
+            f"map them with name_map (in a scenario: [motion.name_map] {missing[0]} = \"<joint>\"); "
+            "the names tried are in simbench.scenes.bvh.ROLE_ALIASES",
         )
     index = {role: clip.joint_index(name) for role, name in mapping.items()}
     for role, parent_role in [(r, p) for r, p, _ in _TRUNK] + [(m, u) for u, m, *_ in _LIMBS] + [(e, m) for _, m, e, *_ in _LIMBS] \
@@ -642,7 +677,7 @@ def map_bvh_joints(clip: BvhClip, name_map: Mapping[str, str] | None = None) -> 
             raise InputFileError(
                 clip.path,
                 f"joint '{mapping[role]}' (for {role}) is not below '{mapping[parent_role]}' (for {parent_role})",
-                "pass name_map={body: joint} to fix the mapping",
+                f"map the bodies with name_map (in a scenario: [motion.name_map] {role} = \"<joint>\")",
             )
     return mapping
 
@@ -702,26 +737,50 @@ def _heading(forward: np.ndarray) -> np.ndarray:
     return np.arctan2(forward[..., 1], forward[..., 0])
 
 
-def _has_inserted_tpose(clip: BvhClip) -> bool:
-    """True if frame 0 is a converter-inserted pose: a jump to frame 1 far above the frame-to-frame change."""
+def converter_lead_in(clip: BvhClip) -> int:
+    """Number of leading frames a BVH converter added before the capture (0 if none).
+
+    cgspeed's CMU conversions insert a T-pose as frame 0; its Daz/Poser-friendly ones then
+    blend into the capture over a few frames (joints turning 20-40 deg per frame where the
+    capture itself turns a few).  Both are found from the largest joint rotation between
+    consecutive frames (geodesic angle of the local rotations, so Euler wraps do not count):
+
+    - frame 0 is inserted if its step to frame 1 exceeds :data:`_TPOSE_STEP_DEG` and five
+      times the ordinary step (the median over the second after the lead-in window);
+    - the transition then ends after the last step within :data:`_LEAD_IN_S` of the start
+      that exceeds ``max(_TRANSITION_STEP_DEG, 4 x ordinary)``.
+
+    Returns
+    -------
+    int
+        Frames to drop: 0 (no inserted pose), 1 (T-pose only) or more (T-pose + transition).
+    """
+    scan = max(2, int(round(_LEAD_IN_S / clip.frame_time_s)))
+    n = min(clip.n_frames, scan + 2 + int(round(1.0 / clip.frame_time_s)))
     if clip.n_frames < 4:
-        return False
-    rot = np.array([c.lower().endswith("rotation") for names in clip.channels for c in names])
-    if not rot.any():
-        return False
-    steps = np.abs(np.diff(clip.frames[: min(clip.n_frames, 12), rot], axis=0)).max(axis=1)
-    return bool(steps[0] > 20.0 and steps[0] > 5.0 * np.median(steps[1:]))
+        return 0
+    local, _ = clip.local_transforms(clip.frames[:n])
+    cos = (np.einsum("fjab,fjab->fj", local[:-1], local[1:]) - 1.0) / 2.0
+    steps = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max(axis=1)  # (n-1,) largest joint turn per frame
+    after = steps[scan + 1:] if len(steps) > scan + 1 else steps[1:]
+    ordinary = float(np.median(after))
+    if not (steps[0] > _TPOSE_STEP_DEG and steps[0] > 5.0 * ordinary):
+        return 0
+    threshold = max(_TRANSITION_STEP_DEG, 4.0 * ordinary)
+    jumps = np.flatnonzero(steps[1:scan + 1] > threshold)
+    return 1 + (int(jumps[-1]) + 1 if jumps.size else 0)
 
 
 def retarget_bvh_keys(
     clip: BvhClip,
     params: BodyParams,
     *,
-    skip_first_frame: bool | None = None,
+    skip_frames: int | None = None,
     reference: str = "rest",
     up_axis: str = "y",
     face_plus_x: bool = True,
     center_xy: bool = True,
+    foot_contact: bool = True,
     name_map: Mapping[str, str] | None = None,
     name: str | None = None,
 ) -> RetargetedBvh:
@@ -734,13 +793,13 @@ def retarget_bvh_keys(
     joint_map = map_bvh_joints(clip, name_map)
     idx = {role: clip.joint_index(j) for role, j in joint_map.items()}
 
-    if skip_first_frame is None:
-        skip_first_frame = _has_inserted_tpose(clip)
-    first = 1 if skip_first_frame else 0
+    first = converter_lead_in(clip) if skip_frames is None else int(skip_frames)
+    if first < 0:
+        raise ValueError(f"skip_frames must be >= 0, got {skip_frames!r}")
     if clip.n_frames - first < 2:
-        raise InputFileError(clip.path, f"only {clip.n_frames} frame(s)", "a motion needs at least two frames after the skipped T-pose")
+        raise InputFileError(clip.path, f"only {clip.n_frames} frame(s), {first} of them skipped",
+                             "a motion needs at least two frames after the converter's T-pose and transition")
     keep = np.arange(first, clip.n_frames)
-
     # BVH axes -> bench axes: Y-up files have the subject's up on +Y; the bench is Z-up.
     axes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]) if up_axis == "y" else np.eye(3)
     ref = clip.forward_kinematics(np.zeros((1, clip.frames.shape[1])) if reference == "rest" else clip.frames[:1])
@@ -765,7 +824,8 @@ def retarget_bvh_keys(
 
     left = (ref.positions[0, idx["thigh_l"]] - ref.positions[0, idx["thigh_r"]]) @ axes.T
     psi_ref = float(_heading(left)) - 0.5 * np.pi  # left side towards +Y means facing +X
-    align = _alignments(kin, {r: _unit(bone(ref, r)[0]) for r in _BONE_END}, psi_ref)
+    ref_dirs = {r: _unit(bone(ref, r)[0]) for r in _BONE_END}
+    align = _alignments(kin, ref_dirs, psi_ref)
 
     # Target world rotation of every body: the BVH joint's rotation since the reference pose,
     # applied to our body as it sits in that reference pose.
@@ -780,6 +840,9 @@ def retarget_bvh_keys(
         heading = _rz(-float(np.arctan2(np.mean(np.sin(psi)), np.mean(np.cos(psi)))))
     targets = {r: heading @ t for r, t in targets.items()}
     directions = {r: _unit(bone(pose, r) @ heading.T) for r in _BONE_END}
+    if foot_contact:
+        for foot in ("foot_l", "foot_r"):
+            targets[foot] = _level_foot(targets[foot], directions[foot], float(ref_dirs[foot][2]))
 
     hinges = _solve_hinges(kin, targets, directions)
     world_from_file = heading @ axes
@@ -789,13 +852,30 @@ def retarget_bvh_keys(
     qpos[:, 3:7] = Rotation.from_matrix(targets["pelvis"]).as_quat(scalar_first=True)
     qpos[:, 7:] = hinges
 
-    # Floor at z = 0: the lowest sole point of each frame, at its 25th percentile over the clip
-    # (robust to jumps, where both feet leave the floor), is put on the floor.
+    # Floor.  The source's feet: each foot point (ankle, toes, End Sites) measured from its own
+    # floor-contact height, the lowest of them per frame is how high the source's feet are
+    # above the floor.  The file's own floor (y = 0) is not trusted: the Daz conversions stand
+    # 6-9 cm above or below it.  to_world() puts the lowest contact height at z = 0.
+    foot_heights = scale * (_foot_points(clip, pose, idx) @ world_from_file.T)[..., 2]  # (K, P) m
+    contact = np.percentile(foot_heights, _CONTACT_PERCENTILE, axis=0)  # (P,) m
+    source_height = (foot_heights - contact).min(axis=1)  # (K,) m
     translation = np.zeros(3)
-    translation[2] = -float(np.percentile(kin.sole_points(qpos)[:, :, 2].min(axis=1), 25.0))
+    translation[2] = -float(contact.min())
     if center_xy:
         translation[:2] = -0.5 * (qpos[:, :2].min(axis=0) + qpos[:, :2].max(axis=0))
     qpos[:, :3] += translation
+    sole = kin.sole_points(qpos)[:, :, 2].min(axis=1)  # (K,) lowest sole point before the lift
+    if foot_contact:
+        # Our lowest sole goes where the source's lowest foot point is, and never below the
+        # floor (where the source's feet go below their contact height, e.g. CMU toe End
+        # Sites dipping through the floor at toe-off, ours stay on it).  Only the root's
+        # height changes; the joint angles are the source's.
+        lift = np.maximum(source_height, 0.0) - sole
+    else:
+        # One offset for the clip: the lowest sole of each frame, at its 25th percentile
+        # over the clip (robust to jumps, where both feet leave the floor), on the floor.
+        lift = np.full(len(keep), -float(np.percentile(sole, 25.0)))
+    qpos[:, 2] += lift
 
     return RetargetedBvh(
         name=name or clip.path.stem,
@@ -806,8 +886,55 @@ def retarget_bvh_keys(
         scale_m_per_unit=float(scale),
         world_from_file=world_from_file,
         translation_m=translation,
+        root_lift_m=lift,
+        source_foot_height_m=source_height,
         kinematics=kin,
     )
+
+
+def _foot_points(clip: BvhClip, pose: BvhPose, idx: Mapping[str, int]) -> np.ndarray:
+    """The source's foot points ``(F, P, 3)``, file units and axes: both foot joints, every
+    joint below them (toes) and their End Sites."""
+    feet = [idx["foot_l"], idx["foot_r"]]
+    joints = [j for j in range(clip.n_joints) if any(j == f or _is_descendant(clip.parents, j, f) for f in feet)]
+    sites = [e for e, parent in enumerate(clip.end_site_parents) if parent in joints]
+    return np.concatenate([pose.positions[:, joints], pose.end_positions[:, sites]], axis=1)
+
+
+def _level_foot(target: np.ndarray, toe_dir: np.ndarray, ref_pitch_sin: float) -> np.ndarray:
+    """Foot orientations ``(F, 3, 3)`` that follow the source's ankle -> toe bone, level across.
+
+    A foot's roll about its long axis cannot be seen in a BVH's foot points (ankle, toes and
+    End Site lie on one line), and the joint rotations that carry it are unreliable: the Daz
+    conversions stand on feet rolled by up to 40 deg while ankle and toe sit at their floor
+    heights, which put our soles on one corner and lifted the other foot off the floor.  So
+    our foot takes the direction and pitch of the source's ankle -> toe bone (its pitch in the
+    reference pose counting as a flat foot, as in :func:`_alignments`) with its lateral axis
+    horizontal; only where that bone is near vertical (no level direction across it) does the
+    lateral axis blend back to the source joint's rotation ``target``.
+
+    Parameters
+    ----------
+    target : (F, 3, 3)
+        Foot rotation from the source joint's rotation (world from foot).
+    toe_dir : (F, 3)
+        Unit ankle -> toe direction of the source, bench world.
+    ref_pitch_sin : float
+        Sine of that bone's elevation in the reference pose (negative: toe below the ankle).
+    """
+    sin_b = float(np.clip(ref_pitch_sin, -0.95, 0.95))
+    ball = np.array([np.sqrt(1.0 - sin_b * sin_b), 0.0, sin_b])  # the flat reference foot's bone, foot frame
+    across_rot = target[:, :, 1] - np.sum(target[:, :, 1] * toe_dir, axis=1, keepdims=True) * toe_dir
+    # The foot's left (+y) side: up x toe for a sole facing down (feet are never upside down);
+    # the source joint's lateral axis is turned to the same side before any blending.
+    across_level = np.cross([0.0, 0.0, 1.0], toe_dir)  # norm = cosine of the bone's elevation
+    across_rot *= np.where(np.sum(across_level * across_rot, axis=1, keepdims=True) < 0.0, -1.0, 1.0)
+    w = np.clip((np.linalg.norm(across_level, axis=1, keepdims=True) - 0.25) / 0.25, 0.0, 1.0)
+    w = w * w * (3.0 - 2.0 * w)  # level below 60 deg of elevation, the source's roll above 75 deg
+    across = w * _unit(across_level) + (1.0 - w) * _unit(across_rot)
+    across = _unit(across - np.sum(across * toe_dir, axis=1, keepdims=True) * toe_dir)
+    frame = np.stack([toe_dir, across, np.cross(toe_dir, across)], axis=2)  # columns: images of x, y, z
+    return frame @ _min_rotation(_unit(ball), np.array([1.0, 0.0, 0.0]))
 
 
 def _our_bone_axis(kin: HumanoidKinematics, role: str) -> np.ndarray:
@@ -935,11 +1062,12 @@ def retarget_bvh(
     clip: BvhClip,
     params: BodyParams,
     *,
-    skip_first_frame: bool | None = None,
+    skip_frames: int | None = None,
     reference: str = "rest",
     up_axis: str = "y",
     face_plus_x: bool = True,
     center_xy: bool = True,
+    foot_contact: bool = True,
     name_map: Mapping[str, str] | None = None,
     name: str | None = None,
 ) -> Motion:
@@ -961,9 +1089,10 @@ def retarget_bvh(
         From :func:`load_bvh`.
     params : BodyParams
         Target subject; the BVH is scaled by the ratio of limb lengths (so any units work).
-    skip_first_frame : bool, optional
-        Drop frame 0 (the converter-inserted T-pose of the CMU conversions).  Default: drop it
-        when it is detected (a jump from frame 0 to 1 far above the frame-to-frame change).
+    skip_frames : int, optional
+        Leading frames to drop.  Default: :func:`converter_lead_in`, i.e. the T-pose that the
+        CMU conversions insert as frame 0 and, in the Daz/Poser-friendly ones, the few
+        transition frames after it, when they are detected.
     reference : {"rest", "first_frame"}
         Pose that corresponds to our T-pose: all channels zero (the OFFSETs), or frame 0.
     up_axis : {"y", "z"}
@@ -972,8 +1101,18 @@ def retarget_bvh(
         Turn the clip about the vertical so that the subject faces +X during its first 0.25 s.
     center_xy : bool
         Centre the root's horizontal path (bounding box) on the origin.
+    foot_contact : bool
+        Keep the floor contact of the source, frame by frame: our lowest sole point is put at
+        the height of the source's lowest foot point above the floor
+        (:attr:`RetargetedBvh.source_foot_height_m`), or on the floor where the source's
+        feet go below their contact height (only the root's height moves), and our feet
+        follow the source's ankle -> toe bones kept level across (:func:`_level_foot`).
+        ``False``: the feet take the source joints' rotations as they are and the clip gets
+        one height offset (the lowest sole's 25th percentile on the floor), which reproduces
+        a BVH of our own humanoid exactly.
     name_map : mapping, optional
-        Humanoid body -> BVH joint overrides for files with unusual names.
+        Humanoid body -> BVH joint overrides for files with unusual names (the scenario
+        field ``motion.name_map``).
     name : str, optional
         Motion name; default the file stem.
 
@@ -981,9 +1120,9 @@ def retarget_bvh(
     -------
     Motion
         Key poses at the BVH frame times, interpolated (C1) in between; the floor is at
-        z = 0 with the lowest sole on it (25th percentile over the clip).
+        z = 0.
     """
     return retarget_bvh_keys(
-        clip, params, skip_first_frame=skip_first_frame, reference=reference, up_axis=up_axis,
-        face_plus_x=face_plus_x, center_xy=center_xy, name_map=name_map, name=name,
+        clip, params, skip_frames=skip_frames, reference=reference, up_axis=up_axis,
+        face_plus_x=face_plus_x, center_xy=center_xy, foot_contact=foot_contact, name_map=name_map, name=name,
     ).motion()
