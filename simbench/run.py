@@ -38,7 +38,11 @@ class RunResult:
 
 
 def label_template(bench: Bench) -> LabelTemplate:
-    """The subject's markers in its T-pose, subject-local frame (what a user's template holds)."""
+    """The subject's markers in its T-pose, subject-local frame (what a user's template holds);
+    for a real capture (no humanoid), its markers in the capture's reference frame."""
+    reference = bench.capture_reference()
+    if reference is not None:
+        return reference.label_template()
     xml = humanoid_mjcf(bench.params, marker_set=bench.scenario.subject.markers)
     m = mujoco.MjModel.from_xml_string(xml)
     d = mujoco.MjData(m)
@@ -49,7 +53,10 @@ def label_template(bench: Bench) -> LabelTemplate:
     return LabelTemplate(tuple(bench.marker_names), pos)
 
 
-def subject_model(bench: Bench) -> SubjectModel:
+def subject_model(bench: Bench) -> SubjectModel | None:
+    """The humanoid's subject model; None for a real capture (no body: markers only)."""
+    if bench.capture_reference() is not None:
+        return None
     return SubjectModel.from_mjcf_text(humanoid_mjcf(bench.params, marker_set=bench.scenario.subject.markers),
                                        name=bench.scenario.name)
 
@@ -139,9 +146,11 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             t1 = time.perf_counter()
             template = label_template(bench)
             subject = subject_model(bench)
+            reference = bench.capture_reference()  # a real capture: rigid clusters instead of a skeleton
+            marker_model = reference.marker_model() if reference is not None else None
             rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x7AC]))
             capture = capture_from_detections(stream.detections, calibration, template, gt.times,
-                                              pipeline_params(scenario), rng, subject, stream.ms)
+                                              pipeline_params(scenario), rng, subject, stream.ms, marker_model=marker_model)
             timings["pipeline_s"] = time.perf_counter() - t1
             metrics.update(score_markers(gt, capture))
         shirt_report: list[str] = []
@@ -166,7 +175,8 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                 export_capture(capture, tmp / "exports", calibration, subject_model(bench))
                 save_template(label_template(bench), tmp / "exports" / "label_template.csv")
                 # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
-                subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
+                if subject_model(bench) is not None:
+                    subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
             _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
             (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
             from simbench.report import write_run_report

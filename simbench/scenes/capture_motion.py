@@ -35,6 +35,7 @@ import numpy as np
 from mocap.errors import MocapInputError
 from mocap.exports import CaptureTrajectories, read_c3d, read_trc
 from mocap.labelling import LabelTemplate
+from mocap.model_labelling import ClusterMarkerModel
 from simbench.errors import ScenarioError
 from simbench.scenario import CaptureGapsConfig, Scenario
 
@@ -146,6 +147,11 @@ class CaptureReference:
     def reference_frame(self) -> int:
         """The first frame with the most markers present."""
         return int(np.argmax(np.isfinite(self.xyz).all(axis=2).sum(axis=1)))
+
+    def marker_model(self) -> ClusterMarkerModel:
+        """The rigid marker clusters of these trajectories (what a commercial system's subject
+        calibration learns from a labelled trial), for model-based labelling without a skeleton."""
+        return ClusterMarkerModel(list(self.labels), self.xyz)
 
     def label_template(self) -> LabelTemplate:
         """A :class:`~mocap.labelling.LabelTemplate` from the reference frame.
