@@ -353,7 +353,9 @@ def read_c3d(
        these are its landmarks (e.g. the condyles and malleoli of ``walking2.c3d``);
     6. a label repeated: the first entry is kept, later ones set aside.
 
-    ``physical_only=False`` returns every entry as it is (``set_aside`` empty).
+    ``physical_only=False`` returns every entry as it is (``set_aside`` empty), and so does a
+    file written by :func:`write_c3d` (the pipeline's labelled markers, a label with no
+    sample included, so that a round trip keeps every label).
 
     **Units**: ``POINT:UNITS`` (mm, m, cm, dm, in) to metres.
 
@@ -399,7 +401,7 @@ def read_c3d(
     F = xyz.shape[0]
     ours = "SIMBENCH" in params and "RESIDUAL_UNITS" in params["SIMBENCH"]
 
-    if physical_only:
+    if physical_only and not ours:  # write_c3d's files hold the pipeline's labelled markers only: kept whole
         groups = [g for g in _OUTPUT_GROUPS]
         if "TYPE_GROUPS" in point:  # pairs (group, type): ANGLES, ANGLE, FORCES, FORCE, ...
             groups += [g.strip() for g in list(point["TYPE_GROUPS"]["value"])[0::2]]

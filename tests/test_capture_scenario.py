@@ -236,3 +236,52 @@ def test_user_errors_name_the_field(tmp_path):
     p.write_text('name = "g"\n[motion]\ngaps = { fraction = 0.2 }\n')
     with pytest.raises(ScenarioError, match=r"capture file only"):
         load_scenario(p)
+
+
+def test_reference_frame_and_label_template():
+    """The template comes from the first frame with the most markers; a marker missing there
+    is carried over from its nearest frame by the motion of the markers seen in both."""
+    from simbench.scenes.capture_motion import CaptureReference
+
+    xyz = np.full((4, 3, 3), np.nan)
+    base = np.array([[0.0, 0.0, 1.0], [0.2, 0.0, 1.2], [0.0, 0.3, 0.5]])
+    for f in range(4):
+        xyz[f] = base + [0.1 * f, 0.0, 0.0]  # walking along X
+    xyz[0, 1] = np.nan  # frame 0: 2 markers
+    xyz[1, 2] = np.nan  # frames 1 and 3: 2 markers; frame 2: all 3
+    xyz[3, 0] = np.nan
+    ref = CaptureReference(("A", "B", "C"), xyz, np.arange(4) / 10.0)
+    assert ref.reference_frame() == 2
+    tpl = ref.label_template()
+    expected = xyz[2] - [*xyz[2, :, :2].mean(axis=0), 0.0]
+    np.testing.assert_allclose(tpl.positions, expected, atol=1e-12)
+    xyz[2, 1] = np.nan  # now no frame has all three: frame 0 is the first with two
+    ref = CaptureReference(("A", "B", "C"), xyz, np.arange(4) / 10.0)
+    assert ref.reference_frame() == 0
+    tpl = ref.label_template()
+    # B from frame 1 (nearest with B), moved back by the 0.1 m the markers seen in both moved.
+    pos = np.array([xyz[0, 0], xyz[1, 1] - [0.1, 0.0, 0.0], xyz[0, 2]])
+    np.testing.assert_allclose(tpl.positions, pos - [*pos[:, :2].mean(axis=0), 0.0], atol=1e-12)
+
+
+def test_run_scores_a_capture_without_a_humanoid(tmp_path):
+    """simbench run on a capture scenario: no subject model or skeleton, the capture's markers
+    labelled and scored against the capture."""
+    import json
+
+    from simbench.run import run_scenario
+
+    sc = _scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.2', "seed = 2\nfps = 100.0\nduration_s = 0.15")
+    result = run_scenario(sc, tmp_path / "out")
+    out = tmp_path / "out"
+    assert not (out / "exports" / "subject.toml").exists()
+    names = [line.split(",")[0] for line in (out / "exports" / "label_template.csv").read_text().splitlines()[1:]]
+    labels, _, _ = _raw_qualisys_m()
+    assert names == labels
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert not any(k.startswith("skeleton.") for k in metrics)
+    print(f"\ncapture run: rmse {metrics['markers.rmse_mm']:.2f} mm, p95 {metrics['markers.p95_error_mm']:.2f} mm, "
+          f"reconstructed {metrics['markers.reconstructed_fraction']:.3f}")
+    assert metrics["markers.reconstructed_fraction"] > 0.9
+    assert metrics["markers.p95_error_mm"] < 5.0
+    assert result.capture is not None and result.capture.skeleton is None

@@ -254,3 +254,13 @@ def test_ballet_trc_rounded_time_column_uses_the_data_rate():
     head = np.median(traj.xyz[:, traj.labels.index("LFHD"), 2])
     toe = np.median(traj.xyz[:, traj.labels.index("LTOE"), 2])
     assert head > 1.4 and toe < 0.2
+
+
+def test_own_files_keep_every_label(tmp_path):
+    """A label the pipeline never reconstructed stays in a round trip through write_c3d."""
+    xyz = np.full((4, 2, 3), np.nan)
+    xyz[:, 0] = [0.5, 0.2, 1.0]
+    traj = Trajectories(["LASI", "RASI"], xyz, np.arange(4) / 100.0)
+    back = read_c3d(write_c3d(tmp_path / "empty.c3d", traj))
+    assert back.labels == ["LASI", "RASI"] and back.set_aside == {}
+    assert np.isnan(back.xyz[:, 1]).all()
