@@ -561,148 +561,142 @@ class SkeletonMarkerModel:
 
 
 class ClusterMarkerModel:
-    """Rigid marker clusters learned from a labelled trial, for captures without a skeleton.
+    """Markers predicted from their most rigid neighbours, learned from a labelled trial.
 
-    A *subject calibration* as commercial systems make it from a labelled range-of-motion trial:
-    markers whose mutual distances stay constant (within ``rigid_tol_m``) over the trial form
-    clusters; every marker is predicted from the cluster whose local frame holds it best (its
-    own cluster, or a neighbouring one for markers on soft tissue or alone on a segment).
+    For captures without a skeleton: a *subject calibration* as commercial systems make it from a
+    labelled range-of-motion trial. For every marker, the ``n_neighbours`` markers whose distance
+    to it varies least over the trial are its neighbours; the marker is predicted from their
+    current positions by the rigid (Kabsch) motion that takes their reference positions there,
+    with at least three of them seen. Its gate is ``min_gate_m`` plus three times that
+    prediction's RMS error over the trial, so a marker on soft tissue gets a wider gate than one
+    on a rigid cluster.
+
+    Parameters
+    ----------
+    labels : M names
+    xyz : (F, M, 3) float
+        The labelled trial, metres, NaN where a marker was not seen.
     """
 
-    def __init__(self, labels: Sequence[str], xyz: np.ndarray, rigid_tol_m: float = 0.006) -> None:
+    def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01) -> None:
         xyz = np.asarray(xyz, dtype=np.float64)
         F, M, _ = xyz.shape
         if M != len(labels):
             raise ValueError(f"ClusterMarkerModel: {len(labels)} labels for {M} trajectories")
         self.labels = list(labels)
-        self.rigid_tol_m = rigid_tol_m
+        self.min_gate_m = min_gate_m
         ok = np.isfinite(xyz).all(axis=2)
-        # Pairwise distance spread over the frames where both are seen.
-        D = np.linalg.norm(xyz[:, :, None] - xyz[:, None], axis=3)          # (F, M, M)
-        both = ok[:, :, None] & ok[:, None, :]
+        step = max(1, F // 400)  # a few hundred frames are plenty for the statistics
+        X, okX = xyz[::step], ok[::step]
+        D = np.linalg.norm(X[:, :, None] - X[:, None], axis=3)                # (F', M, M)
+        both = okX[:, :, None] & okX[:, None, :]
         cnt = both.sum(axis=0)
-        with np.errstate(invalid="ignore"):
-            mean = np.nansum(np.where(both, D, 0.0), axis=0) / np.maximum(cnt, 1)
-            var = np.nansum(np.where(both, (D - mean) ** 2, 0.0), axis=0) / np.maximum(cnt, 1)
-        std = np.where(cnt >= max(10, F // 10), np.sqrt(var), np.inf)
-        np.fill_diagonal(std, 0.0)
-        self.distance_mean_m, self.distance_std_m = mean, std
-        # Clusters: for every marker, the markers held within the tolerance (>= 3 in all).
-        rigid = std < rigid_tol_m
-        clusters: list[np.ndarray] = []
+        Dz = np.where(both, D, 0.0)
+        mean = Dz.sum(axis=0) / np.maximum(cnt, 1)
+        var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
+        std = np.where(cnt >= max(3, len(X) // 5), np.sqrt(var), np.inf)
+        np.fill_diagonal(std, np.inf)
+        self.neighbours = np.argsort(std, axis=1)[:, :n_neighbours]          # (M, k)
+        self.neighbour_std_m = np.take_along_axis(std, self.neighbours, axis=1)
+        # Reference: for each marker, a frame where it and all its neighbours are seen.
+        self.ref_self = np.full((M, 3), np.nan)
+        self.ref_nb = np.full((M, n_neighbours, 3), np.nan)
+        self.gate_m = np.full(M, np.inf)
         for m in range(M):
-            members = np.flatnonzero(rigid[m])
-            if len(members) >= 3 and not any(np.array_equal(members, c) for c in clusters):
-                clusters.append(members)
-        self.clusters = clusters
-        # Reference frame: the frame with most markers seen; every marker's reference position.
-        ref_f = int(np.argmax(ok.sum(axis=1)))
-        ref = xyz[ref_f].copy()
-        for m in np.flatnonzero(~ok[ref_f]):
-            seen = np.flatnonzero(ok[:, m])
-            if seen.size:
-                ref[m] = np.nan  # filled below from its anchor cluster
-        self.reference = ref
-        # Anchor of every marker: the cluster in whose (Kabsch) frame it moves least.
-        self.anchor = np.full(M, -1, dtype=np.intp)
-        self.anchor_local = np.full((M, 3), np.nan)
-        self.anchor_std_m = np.full(M, np.inf)
-        for ci, members in enumerate(clusters):
-            local_ref = None
-            frames = np.flatnonzero(ok[:, members].all(axis=1))
-            if frames.size < 3:
+            nb = self.neighbours[m]
+            frames = np.flatnonzero(ok[:, m] & ok[:, nb].all(axis=1))
+            if frames.size == 0 or not np.isfinite(self.neighbour_std_m[m]).all():
                 continue
-            base = xyz[frames[0], members]
-            locals_ = []
-            for f in frames[:: max(1, frames.size // 200)]:
-                R, t = _kabsch(base, xyz[f, members])
-                locals_.append((xyz[f] - t) @ R)                               # (M, 3) in the cluster frame
-            L = np.array(locals_)
-            with np.errstate(invalid="ignore"):
-                mu = np.nanmean(L, axis=0)
-                spread = np.sqrt(np.nanmean(((L - mu) ** 2).sum(axis=2), axis=0))
-            local_ref = (mu, base)
-            better = np.isfinite(spread) & (spread < self.anchor_std_m)
-            self.anchor[better] = ci
-            self.anchor_std_m[better] = spread[better]
-            for m in np.flatnonzero(better):
-                self.anchor_local[m] = mu[m]
-            if not hasattr(self, "_cluster_base"):
-                self._cluster_base = {}
-            self._cluster_base[ci] = local_ref[1]
+            f0 = frames[frames.size // 2]
+            self.ref_self[m], self.ref_nb[m] = xyz[f0, m], xyz[f0, nb]
+            errs = []
+            for f in frames[:: max(1, frames.size // 100)]:
+                R, t = _kabsch(self.ref_nb[m], xyz[f, nb])
+                errs.append(np.linalg.norm(self.ref_self[m] @ R.T + t - xyz[f, m]))
+            self.gate_m[m] = min_gate_m + 3.0 * float(np.sqrt(np.mean(np.square(errs))))
 
     def markers(self, state: np.ndarray) -> np.ndarray:
         return state
 
-    def _predict_from_clusters(self, pos: np.ndarray) -> np.ndarray:
-        """Every marker from its anchor cluster's pose fitted to the labelled positions ``pos``."""
+    def predict(self, pos: np.ndarray) -> np.ndarray:
+        """Every marker ``(M, 3)`` from its neighbours' labelled positions ``pos`` (NaN: unseen);
+        NaN where fewer than three neighbours are seen."""
         out = np.full_like(pos, np.nan)
-        for ci, members in enumerate(self.clusters):
-            seen = members[np.isfinite(pos[members]).all(axis=1)]
-            if len(seen) < 3:
+        seen = np.isfinite(pos).all(axis=1)
+        for m in range(len(self.labels)):
+            nb = self.neighbours[m]
+            use = seen[nb] & np.isfinite(self.ref_nb[m]).all(axis=1)
+            if use.sum() < 3:
                 continue
-            base = self._cluster_base.get(ci)
-            if base is None:
-                continue
-            sel = np.isin(members, seen)
-            R, t = _kabsch(base[sel], pos[seen])
-            mine = self.anchor == ci
-            out[mine] = self.anchor_local[mine] @ R.T + t
+            R, t = _kabsch(self.ref_nb[m][use], pos[nb[use]])
+            out[m] = self.ref_self[m] @ R.T + t
         return out
 
-    def _gates(self, wide: float) -> np.ndarray:
-        return np.minimum(wide, 0.01 + 3.0 * np.where(np.isfinite(self.anchor_std_m), self.anchor_std_m, wide))
+    def _grow(self, idx: np.ndarray, points: np.ndarray, allowed: np.ndarray, rounds: int = 4) -> np.ndarray:
+        """Label more points from the labelled ones' predictions, until nothing changes."""
+        idx = idx.copy()
+        for _ in range(rounds):
+            pos = _positions(points, idx)
+            pred = self.predict(pos)
+            free = (idx < 0) & np.isfinite(pred).all(axis=1)
+            if not free.any():
+                break
+            taken = allowed.copy()
+            taken[idx[idx >= 0]] = False
+            more = assign_to_predictions(np.where(free[:, None], pred, np.nan), points, self.gate_m, allowed=taken)
+            if not (more >= 0).any():
+                break
+            idx = np.where(more >= 0, more, idx)
+        return idx
 
     def initialise(self, points: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
         M = len(self.labels)
         idx = np.full(M, -1, dtype=np.intp)
-        taken = np.zeros(len(points), bool)
-        pos = np.full((M, 3), np.nan)
-        # Largest clusters first; each found cluster labels its members.
-        for ci in sorted(range(len(self.clusters)), key=lambda c: -len(self.clusters[c])):
-            members = self.clusters[ci]
-            if np.isfinite(pos[members]).all(axis=1).sum() >= 3:
+        # Seeds: groups (a marker and its neighbours), most rigid first, each matched among the
+        # points not yet labelled; every seed then grows through the neighbours' predictions.
+        rigidity = np.nanmax(np.where(np.isfinite(self.neighbour_std_m), self.neighbour_std_m, np.inf), axis=1)
+        for m in np.argsort(rigidity):
+            if not np.isfinite(rigidity[m]):
+                break
+            if idx[m] >= 0:
                 continue
-            base = self._cluster_base.get(ci)
-            if base is None:
+            group = np.concatenate([[m], self.neighbours[m]])
+            free = np.ones(len(points), bool)
+            free[idx[idx >= 0]] = False
+            local = np.vstack([self.ref_self[m], self.ref_nb[m]])
+            tol = max(0.005, 3.0 * float(np.nanmax(self.neighbour_std_m[m])))
+            matches = match_rigid_cluster(local, points, tol, max_matches=2, allowed=free)
+            if not matches or int((matches[0][2] >= 0).sum()) < 4:
                 continue
-            matches = match_rigid_cluster(base, points, 2.5 * self.rigid_tol_m, max_matches=1, allowed=~taken)
-            if not matches:
-                continue
-            _, _, mi, _ = matches[0]
-            for j, m in enumerate(members):
-                if mi[j] >= 0 and idx[m] < 0 and not taken[mi[j]]:
-                    idx[m] = mi[j]
-                    taken[mi[j]] = True
-                    pos[m] = points[mi[j]]
-        if (idx >= 0).sum() < 3:
+            if len(matches) > 1 and int((matches[1][2] >= 0).sum()) == int((matches[0][2] >= 0).sum()) \
+                    and matches[1][3] < 1.5 * matches[0][3]:
+                continue  # two places fit about as well (e.g. a left/right pair): not a seed
+            mi = matches[0][2]
+            for j, g in enumerate(group):
+                if mi[j] >= 0 and idx[g] < 0 and free[mi[j]]:
+                    idx[g] = mi[j]
+            idx = self._grow(idx, points, np.ones(len(points), bool), rounds=8)
+        n = int((idx >= 0).sum())
+        if n < 3:
             return None, idx, 0.0
-        pred = self._predict_from_clusters(pos)
-        free = np.isfinite(pred).all(axis=1) & (idx < 0)
-        if free.any():
-            more = assign_to_predictions(np.where(free[:, None], pred, np.nan), points, self._gates(0.03), allowed=~taken)
-            idx = np.where(more >= 0, more, idx)
-        state = np.where((idx >= 0)[:, None], points[np.maximum(idx, 0)], pred)
-        return state, idx, float((idx >= 0).sum())
+        pos = _positions(points, idx)
+        state = np.where(np.isfinite(pos), pos, self.predict(pos))
+        return state, idx, float(n)
 
     def track(self, points: np.ndarray, trusted: np.ndarray, state: np.ndarray, previous: Sequence[np.ndarray],
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
         pred = _constant_velocity(state, previous)
         idx = assign_to_predictions(pred, points, gates[0], allowed=trusted)
-        pos = np.where((idx >= 0)[:, None], points[np.maximum(idx, 0)], np.nan)
-        # Check every label against its cluster and predict the unseen ones from it.
-        model = self._predict_from_clusters(pos)
-        g = self._gates(gates[1])
-        bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > g)
+        # Veto: a label whose point disagrees with its neighbours' prediction loses it.
+        pos = _positions(points, idx)
+        model = self.predict(pos)
+        bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > self.gate_m)
         idx[bad] = -1
-        free = (idx < 0) & np.isfinite(model).all(axis=1)
-        if free.any():
-            taken = np.zeros(len(points), bool)
-            taken[idx[idx >= 0]] = True
-            more = assign_to_predictions(np.where(free[:, None], model, np.nan), points, g, allowed=~taken)
-            idx = np.where(more >= 0, more, idx)
+        idx = self._grow(idx, points, np.ones(len(points), bool))
+        pos = _positions(points, idx)
+        model = self.predict(pos)
         seen = idx >= 0
-        state = np.where(seen[:, None], points[np.maximum(idx, 0)], np.where(np.isfinite(model), model, pred))
+        state = np.where(seen[:, None], pos, np.where(np.isfinite(model), model, pred))
         return state, idx, float(seen.sum())
 
 
