@@ -65,6 +65,7 @@ def pipeline_params(sc: Scenario) -> MarkerPipelineParams:
     cfg = sc.markers_pipeline
     return MarkerPipelineParams(
         detection=DetectionParams(mode=sc.sensor.mode),
+        labelling=cfg.labelling,
         tracker=cfg.tracker,
         reconstruction=ReconstructionParams(smoothing=cfg.smoothing, max_gap_frames=cfg.max_gap_frames),
         solve_skeleton=cfg.solve_skeleton,

@@ -235,6 +235,9 @@ PropConfig = Annotated[Union[BallConfig, BarrierConfig, MovingConfig], Field(dis
 
 
 class MarkerPipelineConfig(_Model):
+    labelling: Literal["model", "tracker"] = Field(
+        "model", description="'model': unlabelled 3D points labelled by the subject model from any frame, through gaps; "
+        "'tracker': seed 000's T-pose first frame kept by the 2D `tracker` in each camera")
     tracker: str = "kalman"
     calibration: Literal["ground_truth", "estimated"] = "ground_truth"
     smoothing: Literal["none", "butterworth", "rts"] = "none"
