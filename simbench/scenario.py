@@ -78,10 +78,12 @@ class MotionConfig(_Model):
         sources = [k for k in ("bvh", "c3d", "trc") if getattr(self, k)]
         if len(sources) > 1:
             raise ValueError(f"give one motion source, not {' and '.join(sources)}")
-        capture = self.c3d or self.trc
-        if capture and "clip" in self.model_fields_set and self.clip not in ("c3d", "trc"):
-            raise ValueError(f"clip = {self.clip!r} conflicts with a capture file; leave clip out")
-        if not capture:
+        capture = "c3d" if self.c3d else "trc" if self.trc else None
+        if capture:
+            if "clip" in self.model_fields_set and self.clip != capture:
+                raise ValueError(f"clip = {self.clip!r} conflicts with `{capture}`; leave clip out")
+            object.__setattr__(self, "clip", capture)  # says what drives the scene (`simbench info`)
+        else:
             extra = [k for k in ("labels", "gaps") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
             if extra:
                 raise ValueError(f"{', '.join(extra)} apply to a capture file only; give `c3d` or `trc`")
