@@ -1,5 +1,6 @@
-"""BVH parsing and retargeting onto the humanoid, on the two shared CMU clips and on small
-hand-written files whose forward kinematics is known.
+"""BVH parsing and retargeting onto the humanoid, on the six shared CMU clips (three cgspeed
+MotionBuilder/3dsMax-friendly, three Daz/Poser-friendly) and on small hand-written files whose
+forward kinematics is known.
 
 Joint centres of the humanoid come from MuJoCo forward kinematics (body origins); the BVH's
 own joint positions come from its forward kinematics, brought into the bench world with the
@@ -16,12 +17,18 @@ from scipy.spatial.transform import Rotation
 
 from mocap.errors import InputFileError
 from simbench.scenes.bvh import load_bvh, map_bvh_joints, retarget_bvh, retarget_bvh_keys
-from simbench.scenes.humanoid import BODY_NAMES, BodyParams
+from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES, BodyParams
 from simbench.scenes.motions import HumanoidKinematics, make_motion
 
-DATA = Path("/work/shared/data/bvh")
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "bvh"
 WALK = DATA / "131_01.bvh"
 JACKS = DATA / "13_29_jumping_jacks_frames0-599.bvh"
+HOPS = DATA / "01_01.bvh"
+SALSA = DATA / "60_10_salsa_daz.bvh"
+KICK = DATA / "135_04_front_kick_daz.bvh"
+DANCE = DATA / "94_15_indian_dance_daz.bvh"
+ALL_CLIPS = [WALK, JACKS, HOPS, SALSA, KICK, DANCE]
+DAZ_CLIPS = [SALSA, KICK, DANCE]
 PARAMS = BodyParams()
 B = {name: i for i, name in enumerate(BODY_NAMES)}
 LIMB_SEGMENTS = [
@@ -353,3 +360,140 @@ def test_our_own_humanoid_written_as_bvh_retargets_onto_itself(tmp_path, clip):
     dz = keys.qpos[:, 2] - qpos[:, 2]
     np.testing.assert_allclose(dz, dz[0], atol=1e-9)  # only the floor offset differs ...
     assert abs(dz[0]) < 0.005  # ... and the clip already stood on the floor
+
+
+# ----------------------------------------------------------------------------- all six shared clips
+
+
+@pytest.fixture(scope="module")
+def retargeted():
+    """Every shared clip parsed and retargeted once: {path: (clip, keys)}."""
+    out = {}
+    for path in ALL_CLIPS:
+        clip = load_bvh(path)
+        out[path] = (clip, retarget_bvh_keys(clip, PARAMS))
+    return out
+
+
+@pytest.mark.parametrize("path, frames, joints, channels, end_sites", [
+    (HOPS, 2752, 31, 96, 7), (SALSA, 1198, 43, 132, 14), (KICK, 1317, 43, 132, 14), (DANCE, 2212, 43, 132, 14),
+])
+def test_more_cmu_clips_parse(path, frames, joints, channels, end_sites):
+    # counts from the shared data's README; the Daz files mix CRLF and LF and put a tab after "Frames:"
+    clip = load_bvh(path)
+    assert (clip.n_frames, clip.n_joints, clip.frames.shape[1], len(clip.end_site_parents)) == (frames, joints, channels, end_sites)
+    assert clip.frame_time_s == pytest.approx(1 / 120, rel=1e-3)
+
+
+def test_daz_skeletons_map_onto_the_humanoid():
+    mapping = map_bvh_joints(load_bvh(KICK))
+    assert mapping == {
+        "pelvis": "hip", "abdomen": "abdomen", "thorax": "chest", "head": "head",
+        "upperarm_l": "lShldr", "forearm_l": "lForeArm", "hand_l": "lHand",
+        "upperarm_r": "rShldr", "forearm_r": "rForeArm", "hand_r": "rHand",
+        "thigh_l": "lThigh", "shank_l": "lShin", "foot_l": "lFoot",
+        "thigh_r": "rThigh", "shank_r": "rShin", "foot_r": "rFoot",
+    }
+
+
+def _largest_channel_step_deg(clip, start: int, stop: int) -> np.ndarray:
+    """Largest change of any rotation channel between consecutive frames start..stop (wraps folded)."""
+    rot = np.array([c.lower().endswith("rotation") for names in clip.channels for c in names])
+    d = np.abs(np.diff(clip.frames[start:stop + 1, rot], axis=0))
+    return np.minimum(d, 360.0 - d).max(axis=1)
+
+
+@pytest.mark.parametrize("path, dropped", [(WALK, 0), (JACKS, 1), (HOPS, 1), (SALSA, 7), (KICK, 7), (DANCE, 7)])
+def test_converter_lead_in_is_dropped(retargeted, path, dropped):
+    # The shared data's README: cgspeed inserts a T-pose as frame 0 (131_01's frame 0 is continuous
+    # with frame 1 and is kept); in the Daz files joints then turn 20-40 deg per frame for a few
+    # frames, where the capture itself turns a few degrees.
+    clip, keys = retargeted[path]
+    assert keys.frames[0] == dropped
+    steps_in = _largest_channel_step_deg(clip, 0, dropped)
+    steps_after = _largest_channel_step_deg(clip, dropped, dropped + 30)
+    print(f"{path.name}: dropped {dropped} frames, their steps {steps_in.round(1)} deg; next 0.25 s at most {steps_after.max():.1f} deg")
+    assert steps_after.max() < 5.0
+    if dropped:
+        assert steps_in[0] > 20.0
+
+
+def _source_foot_heights(clip, keys) -> tuple[np.ndarray, np.ndarray]:
+    """Independent reading of "the source's lowest foot point above the floor" per kept frame:
+    every foot point (foot joints, the joints below them, their End Sites) measured, in metres
+    along the file's up axis, from its own floor-contact height (its 5th percentile over the
+    kept frames); returns (lowest over both feet (K,), lowest per foot (K, 2))."""
+    pose = clip.forward_kinematics(clip.frames[keys.frames])
+    per_foot = []
+    for body in ("foot_l", "foot_r"):
+        root = clip.joint_index(keys.joint_map[body])
+        joints = [j for j in range(clip.n_joints) if j == root or root in _ancestors(clip.parents, j)]
+        sites = [e for e, parent in enumerate(clip.end_site_parents) if parent in joints]
+        up = np.concatenate([pose.positions[:, joints, 1], pose.end_positions[:, sites, 1]], axis=1) * keys.scale_m_per_unit
+        per_foot.append((up - np.percentile(up, 5.0, axis=0)).min(axis=1))
+    per_foot = np.stack(per_foot, axis=1)
+    return per_foot.min(axis=1), per_foot
+
+
+def _ancestors(parents: np.ndarray, j: int) -> list[int]:
+    out = []
+    while parents[j] >= 0:
+        j = int(parents[j])
+        out.append(j)
+    return out
+
+
+@pytest.mark.parametrize("path", ALL_CLIPS, ids=[p.stem for p in ALL_CLIPS])
+def test_soles_never_sink_below_the_sources_feet(retargeted, path):
+    # The issue: retargeting the kick let a sole sink 92 mm below the floor while the source's
+    # feet stayed above it.  Now, at every frame: our lowest sole point is at most 10 mm below
+    # the source's lowest foot point, and on or above the floor whenever that point is.
+    clip, keys = retargeted[path]
+    source, _ = _source_foot_heights(clip, keys)
+    ours = keys.kinematics.sole_points(keys.motion().qpos(keys.times_s))[:, :, 2].min(axis=1)
+    below_source = ours - source
+    print(f"{path.stem}: source lowest foot point {source.min() * 1000:.0f}..{source.max() * 1000:.0f} mm, "
+          f"our lowest sole {ours.min() * 1000:.1f}..{ours.max() * 1000:.0f} mm, ours - source >= "
+          f"{below_source.min() * 1000:.1f} mm; root lifted {keys.root_lift_m.min() * 1000:.0f}..{keys.root_lift_m.max() * 1000:.0f} mm")
+    assert below_source.min() > -0.010
+    assert ours[source >= 0.0].min() > -0.0005
+    # ... and the feet are not floating instead: where the source stands on the floor, so do we
+    assert np.all(ours[source < 0.005] < 0.010)
+
+
+def test_floor_contact_moves_only_the_root_height_and_the_feet(retargeted):
+    clip, keys = retargeted[KICK]
+    raw = retarget_bvh_keys(clip, PARAMS, foot_contact=False)
+    ankles = [i for i, h in enumerate(HINGE_NAMES) if h.startswith("ankle")]
+    others = [i for i in range(len(HINGE_NAMES)) if i not in ankles]
+    np.testing.assert_allclose(keys.qpos[:, 7 + np.array(others)], raw.qpos[:, 7 + np.array(others)], atol=1e-12)
+    np.testing.assert_allclose(keys.qpos[:, :2], raw.qpos[:, :2], atol=1e-12)  # root x, y
+    np.testing.assert_allclose(keys.qpos[:, 3:7], raw.qpos[:, 3:7], atol=1e-12)  # root orientation
+    np.testing.assert_allclose(keys.qpos[:, 2], keys.to_world(0.5 * (
+        clip.forward_kinematics(clip.frames[keys.frames]).positions[:, clip.joint_index("lThigh")]
+        + clip.forward_kinematics(clip.frames[keys.frames]).positions[:, clip.joint_index("rThigh")]))[:, 2] + keys.root_lift_m,
+        atol=1e-9)
+
+
+def _standing_foot_tilt_deg(clip, keys) -> np.ndarray:
+    """Lateral tilt (deg) of our feet in the frames where the source's same foot is on the floor."""
+    _, per_foot = _source_foot_heights(clip, keys)
+    _, rot = keys.kinematics.forward(keys.qpos)
+    return np.concatenate([np.degrees(np.arcsin(np.abs(rot[per_foot[:, side] < 0.005, B[body], 2, 1])))
+                           for side, body in enumerate(("foot_l", "foot_r"))])
+
+
+@pytest.mark.parametrize("path", ALL_CLIPS, ids=[p.stem for p in ALL_CLIPS])
+def test_feet_on_the_floor_are_level_across(retargeted, path):
+    # A foot's roll about its long axis is invisible in the BVH's foot points, and the joint
+    # rotations that carry it roll standing feet by up to 30 deg (13_29, 135_04), which put our
+    # soles on one edge.  Ours stay level across where the source's foot is on the floor (tilt
+    # remains where the ankle is at its range, or a pitched foot points elsewhere than the
+    # source's, our ankle having no twist).
+    clip, keys = retargeted[path]
+    ours = _standing_foot_tilt_deg(clip, keys)
+    joints = _standing_foot_tilt_deg(clip, retarget_bvh_keys(clip, PARAMS, foot_contact=False))
+    print(f"{path.stem}: lateral tilt of standing feet, median / 90th pct: {np.median(ours):.1f} / "
+          f"{np.percentile(ours, 90):.1f} deg (source joint rotations: {np.median(joints):.1f} / {np.percentile(joints, 90):.1f} deg)")
+    assert np.median(ours) < 1.5
+    assert np.median(ours) < 0.5 * np.median(joints)

@@ -998,7 +998,21 @@ def _solve_hinges(kin: HumanoidKinematics, targets: dict[str, np.ndarray], direc
         free = [a for a in "XYZ" if a not in axes_seq]
         euler = Rotation.from_matrix(local).as_euler("".join(axes_seq + free))
         cols = [column[h] for h in names]
-        values = np.clip(np.unwrap(euler[:, : len(names)], axis=0), kin.hinge_lo[cols], kin.hinge_hi[cols])
+        unwrapped = np.unwrap(euler[:, : len(names)], axis=0)
+        values = np.clip(unwrapped, kin.hinge_lo[cols], kin.hinge_hi[cols])
+        if len(names) == 2:
+            # Wrist and ankle: the dropped axis (the hand's long axis, the sole's normal) is what
+            # the two hinges keep.  Where the first hinge hit its range, the second takes the
+            # angle that brings that axis closest to its target (the decomposition's own second
+            # angle where nothing is clamped), e.g. an ankle at its dorsiflexion limit still
+            # levels the foot across.
+            kept = np.eye(3)[_AXIS_LETTER.index(free[0])]
+            second_axis = np.eye(3)[_AXIS_LETTER.index(axes_seq[1])]
+            first = Rotation.from_euler(axes_seq[0], values[:, :1]).as_matrix()
+            m = np.einsum("fji,fj->fi", first, local @ kept)  # the kept axis's target, in the first hinge's frame
+            second = np.arctan2(m @ np.cross(second_axis, kept), m @ kept)
+            second += 2.0 * np.pi * np.round((unwrapped[:, 1] - second) / (2.0 * np.pi))  # the same branch
+            values[:, 1] = np.clip(second, kin.hinge_lo[cols[1]], kin.hinge_hi[cols[1]])
         hinges[:, cols] = values
         return Rotation.from_euler("".join(axes_seq), values).as_matrix()
 
