@@ -48,23 +48,67 @@ def make_props(scenario: Scenario) -> list:
 
 
 def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.Generator) -> Motion:
-    m = scenario.motion
-    needed = m.start_s + scenario.duration_s * m.speed + 0.1
-    if m.clip == "bvh":
-        from simbench.scenes.bvh import load_bvh, retarget_bvh
+    """The scenario's motion: scenario time ``t`` plays clip time ``start_s + speed * t``.
 
-        clip = retarget_bvh(load_bvh(scenario.resolve_path(m.bvh)), params)
+    A BVH clip must last ``start_s + duration_s * speed`` seconds (counted from its first
+    frame after the converter's lead-in) unless ``motion.end`` says what to do past its end:
+    ``"hold"`` its last pose or ``"loop"`` back to its first frame.
+
+    Raises
+    ------
+    ScenarioError
+        A BVH clip too short for the window with ``end = "error"``, a window that starts
+        after the clip's end, or a ``name_map`` joint the file does not have.
+    """
+    m = scenario.motion
+    where = scenario.source_dir or "<scenario>"
+    needed = m.start_s + scenario.duration_s * m.speed
+    if m.clip == "bvh":
+        clip = _bvh_motion(scenario, params, needed)
     else:
         from simbench.scenes.motions import MOTIONS
 
         if m.clip not in MOTIONS:
-            raise ScenarioError(scenario.source_dir or "<scenario>", "motion.clip", m.clip,
-                                f"choose one of {sorted(MOTIONS)} or 'bvh'")
-        clip = make_motion(m.clip, params, needed, rng=None)
-    if m.start_s == 0.0 and m.speed == 1.0:
+            raise ScenarioError(where, "motion.clip", m.clip, f"choose one of {sorted(MOTIONS)} or 'bvh'")
+        clip = make_motion(m.clip, params, needed + 0.1, rng=None)
+    if m.start_s == 0.0 and m.speed == 1.0 and m.end != "loop":
         return clip
-    return Motion(name=clip.name, duration_s=scenario.duration_s + 0.1,
-                  evaluate=lambda t: clip.qpos(m.start_s + m.speed * np.asarray(t)), description=clip.description)
+    if m.end == "loop":
+        def evaluate(t: np.ndarray) -> np.ndarray:
+            return clip.qpos(np.mod(m.start_s + m.speed * np.asarray(t), clip.duration_s))
+    else:
+        def evaluate(t: np.ndarray) -> np.ndarray:
+            return clip.qpos(m.start_s + m.speed * np.asarray(t))
+    return Motion(name=clip.name, duration_s=scenario.duration_s + 0.1, evaluate=evaluate, description=clip.description)
+
+
+def _bvh_motion(scenario: Scenario, params: BodyParams, needed_s: float) -> Motion:
+    """Load and retarget the scenario's BVH clip; check that it covers ``needed_s`` seconds."""
+    from simbench.scenes.bvh import load_bvh, retarget_bvh_keys
+
+    m = scenario.motion
+    where = scenario.source_dir or "<scenario>"
+    path = scenario.resolve_path(m.bvh)
+    bvh = load_bvh(path)
+    for body, joint in m.name_map.items():
+        if joint not in bvh.joint_names:
+            raise ScenarioError(where, f"motion.name_map.{body}", joint,
+                                f"{path} has no such joint; its joints: {', '.join(bvh.joint_names)}")
+    keys = retarget_bvh_keys(bvh, params, name_map=m.name_map or None)
+    clip = keys.motion()
+    frames = f"frames {keys.frames[0]}-{keys.frames[-1]} at {1.0 / bvh.frame_time_s:.4g} Hz"
+    if keys.frames[0]:
+        frames += f", after the converter's {keys.frames[0]} lead-in frame(s)"
+    if needed_s > clip.duration_s + 1e-9 and m.end == "error":
+        raise ScenarioError(
+            where, "motion", f"start_s + duration_s * speed = {m.start_s:g} + {scenario.duration_s:g} * {m.speed:g} "
+            f"= {needed_s:.3f} s",
+            f"the BVH clip {path} lasts {clip.duration_s:.3f} s ({frames}); shorten duration_s, start earlier, "
+            "or set motion.end = \"hold\" (keep the last pose) or \"loop\"")
+    if m.start_s >= clip.duration_s and m.end == "hold":
+        raise ScenarioError(where, "motion.start_s", m.start_s,
+                            f"the BVH clip {path} lasts {clip.duration_s:.3f} s ({frames}); start inside it")
+    return clip
 
 
 @dataclass

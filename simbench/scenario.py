@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_serializer, model_validator
 
 from simbench.errors import ScenarioError
+from simbench.scenes.humanoid import BODY_NAMES
 
 Vec3 = tuple[float, float, float]
 
@@ -57,6 +58,7 @@ class CaptureGapsConfig(_Model):
 
 
 _CAPTURE_FIELDS = {"c3d": None, "trc": None, "labels": None, "up_axis": "auto", "gaps": None}
+_BVH_FIELDS = {"end": "error", "name_map": {}}  # omitted from the dump at their defaults, as the capture fields
 
 
 class MotionConfig(_Model):
@@ -70,6 +72,29 @@ class MotionConfig(_Model):
     labels: tuple[str, ...] | None = Field(None, description="c3d/trc: the markers to render (default: every physical marker)")
     up_axis: Literal["auto", "x", "y", "z"] = Field("auto", description="c3d/trc: the file's up axis (auto: from the file)")
     gaps: CaptureGapsConfig | None = Field(None, description="c3d/trc: seeded artificial gaps")
+    end: Literal["error", "hold", "loop"] = Field(
+        "error", description="bvh: a clip shorter than start_s + duration_s * speed is an error, holds its last pose, "
+        "or starts again from its first frame (the pose jumps there unless the clip is a cycle)")
+    name_map: dict[str, str] = Field(
+        default_factory=dict, description="bvh: humanoid body -> BVH joint, for joints whose names are not recognised "
+        "(bodies: " + ", ".join(BODY_NAMES) + ")")
+
+    @field_validator("name_map")
+    @classmethod
+    def _name_map_bodies(cls, v: dict[str, str]) -> dict[str, str]:
+        unknown = sorted(set(v) - set(BODY_NAMES))
+        if unknown:
+            raise ValueError(f"keys {unknown} are not humanoid bodies; use: {', '.join(BODY_NAMES)}")
+        empty = sorted(body for body, joint in v.items() if not joint.strip())
+        if empty:
+            raise ValueError(f"no joint given for {empty}")
+        return v
+
+    @model_validator(mode="after")
+    def _name_map_needs_bvh(self):
+        if self.name_map and not self.bvh:
+            raise ValueError("name_map applies to a BVH clip only; give `bvh`")
+        return self
 
     @model_validator(mode="after")
     def _bvh_needs_path(self):
@@ -95,6 +120,10 @@ class MotionConfig(_Model):
         data = handler(self)
         if isinstance(data, dict) and not (self.c3d or self.trc):
             for key, default in _CAPTURE_FIELDS.items():
+                if key in data and data[key] == default:
+                    del data[key]
+        if isinstance(data, dict):
+            for key, default in _BVH_FIELDS.items():
                 if key in data and data[key] == default:
                     del data[key]
         return data
