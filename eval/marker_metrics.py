@@ -14,6 +14,10 @@ Definitions (the same for every tracker and scenario):
   at a frame where the marker is visible in that camera and its label's tracked
   position is absent (lost) or more than ``loss_radius_px`` from the true projection,
   after a frame where it was correct.
+* ``gaps`` and ``gaps_recovered``: a gap is a run of frames where a marker is visible in
+  fewer than two cameras, strictly inside the span where it is visible in two or more; it
+  is recovered when, within ``window`` frames after it ends, the marker's own label is
+  estimated within ``tol_m`` of it (labelled again, not taken over by a neighbour).
 """
 
 from __future__ import annotations
@@ -74,6 +78,29 @@ def per_marker_error_mm(est_xyz: np.ndarray, true_xyz: np.ndarray) -> np.ndarray
     return marker_errors_m(est_xyz, true_xyz) * 1e3
 
 
+def gap_recovery(est_xyz: np.ndarray, true_xyz: np.ndarray, visible: np.ndarray, window: int = 10,
+                 tol_m: float = 0.005) -> tuple[int, int]:
+    """``(gaps recovered, gaps)`` (see the module docstring); ``visible`` is ``(F, C, M)``."""
+    eligible = np.asarray(visible).sum(axis=1) >= 2                     # (F, M)
+    err = marker_errors_m(est_xyz, true_xyz)
+    good = np.isfinite(err) & (err < tol_m)
+    F, M = eligible.shape
+    gaps = recovered = 0
+    for m in range(M):
+        seen = np.flatnonzero(eligible[:, m])
+        if seen.size < 2:
+            continue
+        inside = ~eligible[seen[0]:seen[-1] + 1, m]
+        starts = np.flatnonzero(inside & ~np.concatenate([[False], inside[:-1]]))
+        for s in starts:
+            end = s + int(np.argmax(~inside[s:])) + seen[0]               # first eligible frame after the gap
+            gaps += 1
+            after = np.arange(end, min(end + window, F))
+            after = after[eligible[after, m]]
+            recovered += bool(good[after, m].any())
+    return recovered, gaps
+
+
 def summarize_markers(est_xyz, true_xyz, visible, tracked_xy=None, true_xy=None, filled=None) -> dict[str, float]:
     out = {
         "markers.rmse_mm": rmse_mm(est_xyz, true_xyz),
@@ -84,6 +111,7 @@ def summarize_markers(est_xyz, true_xyz, visible, tracked_xy=None, true_xy=None,
     fin = e[np.isfinite(e)]
     out["markers.p95_error_mm"] = float(np.percentile(fin, 95) * 1e3) if fin.size else float("nan")
     out["markers.max_error_mm"] = float(fin.max() * 1e3) if fin.size else float("nan")
+    out["markers.gaps_recovered"], out["markers.gaps"] = gap_recovery(est_xyz, true_xyz, visible)
     if filled is not None:
         out["markers.filled_fraction"] = float(np.asarray(filled).mean())
     if tracked_xy is not None and true_xy is not None:

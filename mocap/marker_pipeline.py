@@ -148,11 +148,17 @@ def capture_from_detections(
         else:
             model = marker_model
         labels = label_points(frames, model, params.model_labelling)
-        tracks, init = _tracks_from_point_labels(labels, frames, detections, list(template.names), calibration)
-        timings["label_init"] = 0.0
         timings["labelling"] = (time.perf_counter() - t0) * 1e3
-        timings["tracking"] = 0.0
-    else:
+        if (labels.point_index >= 0).sum() < 3 * F:
+            # No confident fit anywhere (e.g. two cameras whose pairings are all ambiguous):
+            # fall back to seed 000's scheme rather than return nothing.
+            use_model = False
+            t0 = time.perf_counter()
+        else:
+            tracks, init = _tracks_from_point_labels(labels, frames, detections, list(template.names), calibration)
+            timings["label_init"] = 0.0
+            timings["tracking"] = 0.0
+    if not use_model:
         init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
         timings["label_init"] = (time.perf_counter() - t0) * 1e3
         t0 = time.perf_counter()
