@@ -729,6 +729,8 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
 
     def init(f: int):
         sel = np.flatnonzero(trusted[f])
+        if sel.size < 3:
+            return None, np.full(M, -1, dtype=np.intp), 0.0
         state, idx, score = model.initialise(frames[f].xyz[sel])
         return state, np.where(idx >= 0, sel[np.maximum(idx, 0)], -1), score
 

@@ -1,0 +1,182 @@
+"""Model-based labelling on real captures with real gaps, through a virtual rig (geometry only).
+
+Every shared C3D whose physical markers have gaps, and Qualisys.c3d with seeded gaps in 20 % of
+its markers (runs of 2-70 frames), is projected into four 1280x960 cameras around the capture
+(mild distortion, 0.1 px noise, a marker hidden where a nearer marker's blob covers it, shuffled
+detection order). Nothing is labelled by hand: unlabelled points come from epipolar voting and
+labels from a rigid-cluster model learned from the capture itself (a subject calibration). Scored
+against the capture: RMSE over measured samples, every gap re-labelled, no swaps.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from eval.marker_metrics import gap_recovery, label_swaps
+from mocap.calibration import Calibration, Camera
+from mocap.correspondence import reconstruct_unlabelled
+from mocap.exports import read_c3d
+from mocap.labelling import LabelTemplate
+from mocap.marker_pipeline import MarkerPipelineParams, capture_from_detections
+from mocap.model_labelling import ClusterMarkerModel, assign_to_predictions
+from mocap.reconstruction import ReconstructionParams
+from mocap.types import Detections
+
+C3D_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "c3d"
+NOISE_PX = 0.1
+MARKER_RADIUS_M = 0.007
+# Real captures whose physical markers have gaps (shared/data/README.md), with a window that keeps
+# the subject inside a 4-camera ring: (file, first frame, frames).
+GAPPED = [
+    ("BTS.c3d", 0, 675),
+    ("kinematics_basket_sprint.c3d", 600, 360),
+    ("kinematics_racing_propulsion.c3d", 0, 700),
+    ("ADemo1_rewrite_c3d_pc_float.c3d", 0, 512),
+    ("Res16bits.c3d", 0, 100),
+]
+
+
+def _look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    eye = np.asarray(eye, float)
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z]), -np.stack([x, np.cross(z, x), z]) @ eye
+
+
+def virtual_capture(xyz: np.ndarray, seed: int) -> dict:
+    """Project ``(F, M, 3)`` metres (NaN = absent) into four cameras around the capture."""
+    F, M, _ = xyz.shape
+    pts = xyz.reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    # The rig of tests/test_real_qualisys.py, widened for captures that travel further.
+    reach = max(3.5, 0.6 * float(np.max(hi[:2] - lo[:2])) + 2.5)
+    cams = []
+    for i, (dx, dy) in enumerate([(-1, -0.86), (1, -0.86), (1, 0.86), (-1, 0.86)]):
+        R, t = _look_at([centre[0] + dx * reach, centre[1] + dy * reach, 2.6], [centre[0], centre[1], 0.8])
+        K = [[950.0, 0, 640.5], [0, 951.0, 479.5], [0, 0, 1]]
+        cams.append(Camera(f"cam{i}", (1280, 960), K, [-0.06, 0.015, 0.0005, -0.0005, 0.0], R, t))
+    cal = Calibration(tuple(cams))
+    rng = np.random.default_rng(seed)
+    present = np.isfinite(xyz).all(axis=2)
+    true_px = np.stack([cal.project(x) for x in xyz])                                    # (F, C, M, 2)
+    depth = np.stack([np.stack([cam.to_camera(x)[:, 2] for cam in cal]) for x in xyz])    # (F, C, M)
+    radius_px = 950.0 * MARKER_RADIUS_M / depth
+    gap = np.linalg.norm(true_px[:, :, :, None] - true_px[:, :, None, :], axis=-1)
+    overlap = gap < radius_px[..., :, None] + radius_px[..., None, :]
+    hidden = (overlap & (depth[..., None, :] < depth[..., :, None])).any(axis=-1)
+    inside = np.stack([cam.in_image(true_px[:, c].reshape(-1, 2), 5).reshape(F, M) for c, cam in enumerate(cal)], axis=1)
+    seen = present[:, None, :] & ~hidden & inside
+    observed = true_px + rng.normal(0.0, NOISE_PX, true_px.shape)
+    detections = []
+    for c in range(len(cal)):
+        per_frame = []
+        for f in range(F):
+            order = rng.permutation(np.flatnonzero(seen[f, c]))
+            per_frame.append(Detections.from_points(observed[f, c, order]))
+        detections.append(per_frame)
+    return dict(cal=cal, detections=detections, seen=seen)
+
+
+def run_model_labelling(labels: list[str], xyz: np.ndarray, rate_hz: float, seed: int) -> dict:
+    rig = virtual_capture(xyz, seed)
+    F = len(xyz)
+    model = ClusterMarkerModel(labels, xyz)
+    template = LabelTemplate(tuple(labels), np.nan_to_num(np.nanmedian(xyz, axis=0)))
+    params = MarkerPipelineParams(
+        reconstruction=ReconstructionParams(epipolar_threshold_px=1.0, max_residual_px=0.6, max_gap_frames=10),
+        solve_skeleton=False)
+    cap = capture_from_detections(rig["detections"], rig["cal"], template, np.arange(F) / rate_hz, params,
+                                  np.random.default_rng(seed), None, marker_model=model)
+    est = cap.trajectories.xyz
+    err = np.linalg.norm(est - xyz, axis=2)
+    measured = np.isfinite(err) & ~cap.trajectories.filled
+    recovered, gaps = gap_recovery(est, xyz, rig["seen"])
+    return dict(rmse_mm=1e3 * float(np.sqrt(np.mean(err[measured] ** 2))), max_mm=1e3 * float(np.nanmax(err)),
+                swaps=label_swaps(est, xyz), recovered=recovered, gaps=gaps,
+                reconstructed=float(np.isfinite(err).sum() / max((rig["seen"].sum(axis=1) >= 2).sum(), 1)))
+
+
+def _seeded_gaps(xyz: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    F, M, _ = xyz.shape
+    out = xyz.copy()
+    for m in rng.choice(M, size=int(round(fraction * M)), replace=False):
+        f = int(rng.integers(5, 60))
+        while f < F - 5:
+            n = int(rng.integers(2, 71))
+            out[f:f + n, m] = np.nan
+            f += n + int(rng.integers(20, 80))
+    return out
+
+
+def test_unlabelled_points_from_epipolar_voting() -> None:
+    """Every marker seen by three or more cameras comes back once, at its place; almost no ghosts."""
+    traj = read_c3d(C3D_DIR / "Qualisys.c3d")
+    xyz = traj.xyz[::10]
+    rig = virtual_capture(xyz, seed=3)
+    found = ghosts = expected = 0
+    errors = []
+    for f in range(len(xyz)):
+        pts = reconstruct_unlabelled([d[f] for d in rig["detections"]], rig["cal"])
+        d, i = cKDTree(xyz[f]).query(pts.xyz)
+        ok = d < 0.003
+        ghosts += int((~ok).sum())
+        three = rig["seen"][f].sum(axis=0) >= 3
+        expected += int(three.sum())
+        found += int(np.isin(np.flatnonzero(three), i[ok]).sum())
+        errors.extend(d[ok])
+        assert len(np.unique(i[ok])) == ok.sum()  # one point per marker
+    print(f"found {found}/{expected} markers seen by >= 3 cameras, {ghosts} ghosts, rmse {1e3 * np.sqrt(np.mean(np.square(errors))):.3f} mm")
+    assert found >= 0.99 * expected
+    assert ghosts <= 0.01 * expected
+    assert np.sqrt(np.mean(np.square(errors))) < 0.0006
+
+
+def test_assignment_gives_one_point_per_label() -> None:
+    pred = np.array([[0.0, 0, 0], [0.02, 0, 0], [1.0, 0, 0]])
+    pts = np.array([[0.019, 0, 0], [0.001, 0, 0], [5.0, 0, 0]])
+    assert assign_to_predictions(pred, pts, 0.05).tolist() == [1, 0, -1]
+    # A neighbour 20 mm away never takes a lost marker's point: its own prediction is nearer.
+    assert assign_to_predictions(pred[:2], pts[:1], 0.05).tolist() == [-1, 0]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="known gap (issue 12): 25/40 gaps re-labelled on this rig, 0 swaps, 0.73 mm; markers hidden "
+                   "in all but one camera for long runs come back as two-view points the cluster model does not yet trust",
+                   strict=False)
+def test_qualisys_with_seeded_gaps() -> None:
+    traj = read_c3d(C3D_DIR / "Qualisys.c3d")
+    xyz = _seeded_gaps(traj.xyz, 0.2, np.random.default_rng(5))
+    r = run_model_labelling(list(traj.labels), xyz, traj.rate_hz, seed=2024)
+    print(f"Qualisys with seeded gaps: rmse {r['rmse_mm']:.3f} mm, gaps recovered {r['recovered']}/{r['gaps']}, "
+          f"swaps {r['swaps']}, reconstructed {r['reconstructed']:.3f}")
+    assert r["gaps"] >= 30
+    assert r["recovered"] == r["gaps"]
+    assert r["swaps"] == 0
+    assert r["rmse_mm"] <= 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="known gap (issue 12), measured: BTS 52 mm / 26 of 30 gaps / 2 swaps; basket sprint 6.1 mm / "
+                   "1 swap; racing propulsion 209 mm / 52 of 225 / 211 swaps; Codamotion 3.0 mm / 19 of 55 / 14 swaps; "
+                   "Res16bits passes (0.57 mm, 1/1, 0 swaps): skin-marker clusters of real subjects seed wrong groups",
+                   strict=False)
+@pytest.mark.parametrize("name,first,count", GAPPED)
+def test_real_captures_with_gaps(name: str, first: int, count: int) -> None:
+    traj = read_c3d(C3D_DIR / name)
+    xyz = traj.xyz[first:first + count]
+    keep = np.isfinite(xyz).all(axis=2).any(axis=0)
+    labels = [n for n, k in zip(traj.labels, keep) if k]
+    r = run_model_labelling(labels, xyz[:, keep], traj.rate_hz, seed=11)
+    print(f"{name}: rmse {r['rmse_mm']:.3f} mm (max {r['max_mm']:.1f}), gaps recovered {r['recovered']}/{r['gaps']}, "
+          f"swaps {r['swaps']}, reconstructed {r['reconstructed']:.3f}")
+    assert r["swaps"] == 0
+    assert r["recovered"] == r["gaps"]
+    assert r["rmse_mm"] <= 1.0
