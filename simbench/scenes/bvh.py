@@ -31,9 +31,10 @@ Retargeting, in short
    (:func:`_level_foot`); everything is clamped to the ranges.
 4. Root: hip-joint midpoint, scaled, Y-up to Z-up, turned to face +X; its height then puts
    our lowest sole point, frame by frame, where the source's lowest foot point is above the
-   floor (each foot point measured from its own floor-contact height), never below z = 0.
-   Where our joint ranges cannot follow the source (e.g. an ankle at its dorsiflexion limit
-   in a deep crouch) the foot stands on its toe corner and the root rises accordingly.
+   floor (each foot point measured from its own floor-contact height), never below z = 0,
+   and each foot near the floor is brought to its own source foot's height by bending or
+   stretching its leg (:func:`_place_feet`).  Where our joint ranges cannot follow the source
+   (an ankle at its dorsiflexion limit in a deep crouch) that foot stands on its toe corner.
 
 The converter's lead-in (CMU conversions: a T-pose in frame 0; Daz/Poser-friendly ones: a few
 transition frames after it) is detected and dropped (:func:`converter_lead_in`).
@@ -53,7 +54,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import InputFileError
-from simbench.scenes.humanoid import HINGE_NAMES, BodyParams
+from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES, BodyParams
 from simbench.scenes.motions import HumanoidKinematics, Motion
 
 __all__ = [
@@ -548,6 +549,7 @@ _BONE_END: Mapping[str, str | None] = MappingProxyType(
     | {a: b for upper, middle, end, *_ in _LIMBS for a, b in ((upper, middle), (middle, end), (end, None))}
 )
 _AXIS_LETTER = "XYZ"
+_BODY_INDEX = {name: i for i, name in enumerate(BODY_NAMES)}
 
 # Bending weight of a limb: below sin(5 deg) of flexion the bend plane is undefined and the
 # upper segment's twist follows the BVH rotation; above sin(20 deg) it follows the bend plane.
@@ -562,6 +564,12 @@ _LEAD_IN_S = 0.1
 # Floor contact: a foot point's height when its foot is on the floor is its 5th percentile
 # over the clip (every clip has its feet on the floor for far more than 5 % of its frames).
 _CONTACT_PERCENTILE = 5.0
+# Legs are bent or stretched to put a foot at its source foot's height (_place_feet) where
+# that foot is within 2 cm of the floor, blending out up to 6 cm (feet in the air keep the
+# source's limb directions); for a 1.75 m subject, i.e. as fractions of the standing hip height
+# (0.93 m), so that every body size gets the same joint angles.
+_FOOT_IK_FULL = 0.02 / 0.93
+_FOOT_IK_BLEND = 0.04 / 0.93
 
 
 def _normalise_name(name: str) -> str:
@@ -856,26 +864,41 @@ def retarget_bvh_keys(
     # floor-contact height, the lowest of them per frame is how high the source's feet are
     # above the floor.  The file's own floor (y = 0) is not trusted: the Daz conversions stand
     # 6-9 cm above or below it.  to_world() puts the lowest contact height at z = 0.
-    foot_heights = scale * (_foot_points(clip, pose, idx) @ world_from_file.T)[..., 2]  # (K, P) m
-    contact = np.percentile(foot_heights, _CONTACT_PERCENTILE, axis=0)  # (P,) m
-    source_height = (foot_heights - contact).min(axis=1)  # (K,) m
+    per_foot = []  # (K,) per foot: its lowest point above its contact height, metres
+    lowest_contact = np.inf
+    for foot in ("foot_l", "foot_r"):
+        heights = scale * (_foot_points(clip, pose, idx[foot]) @ world_from_file.T)[..., 2]  # (K, P) m
+        contact = np.percentile(heights, _CONTACT_PERCENTILE, axis=0)  # (P,) m
+        per_foot.append((heights - contact).min(axis=1))
+        lowest_contact = min(lowest_contact, float(contact.min()))
+    source_feet = np.stack(per_foot, axis=1)  # (K, 2)
+    source_height = source_feet.min(axis=1)  # (K,)
     translation = np.zeros(3)
-    translation[2] = -float(contact.min())
+    translation[2] = -lowest_contact
     if center_xy:
         translation[:2] = -0.5 * (qpos[:, :2].min(axis=0) + qpos[:, :2].max(axis=0))
     qpos[:, :3] += translation
-    sole = kin.sole_points(qpos)[:, :, 2].min(axis=1)  # (K,) lowest sole point before the lift
+    raw_z = qpos[:, 2].copy()
     if foot_contact:
         # Our lowest sole goes where the source's lowest foot point is, and never below the
         # floor (where the source's feet go below their contact height, e.g. CMU toe End
-        # Sites dipping through the floor at toe-off, ours stay on it).  Only the root's
-        # height changes; the joint angles are the source's.
-        lift = np.maximum(source_height, 0.0) - sole
+        # Sites dipping through the floor at toe-off, ours stay on it): first by the root's
+        # height, then each foot near the floor is brought to its own source foot's height by
+        # its leg (_place_feet), then the root's height once more for what the legs could not
+        # reach.  Elsewhere the joint angles are the source's.
+        qpos[:, 2] += np.maximum(source_height, 0.0) - kin.sole_points(qpos)[:, :, 2].min(axis=1)
+        near = np.clip((_FOOT_IK_FULL + _FOOT_IK_BLEND - source_feet / kin.standing_height_m) / _FOOT_IK_BLEND, 0.0, 1.0)
+        sole_feet = kin.sole_points(qpos)[:, :, 2].reshape(-1, 2, 4).min(axis=2)
+        wanted = sole_feet + near * near * (3.0 - 2.0 * near) * (np.maximum(source_feet, 0.0) - sole_feet)
+        qpos = _place_feet(kin, qpos, targets, directions, wanted)
+        sole = kin.sole_points(qpos)[:, :, 2].min(axis=1)
+        lift = qpos[:, 2] - raw_z + np.maximum(source_height, 0.0) - sole
     else:
+        sole = kin.sole_points(qpos)[:, :, 2].min(axis=1)  # (K,) lowest sole point
         # One offset for the clip: the lowest sole of each frame, at its 25th percentile
         # over the clip (robust to jumps, where both feet leave the floor), on the floor.
         lift = np.full(len(keep), -float(np.percentile(sole, 25.0)))
-    qpos[:, 2] += lift
+    qpos[:, 2] = raw_z + lift
 
     return RetargetedBvh(
         name=name or clip.path.stem,
@@ -892,13 +915,57 @@ def retarget_bvh_keys(
     )
 
 
-def _foot_points(clip: BvhClip, pose: BvhPose, idx: Mapping[str, int]) -> np.ndarray:
-    """The source's foot points ``(F, P, 3)``, file units and axes: both foot joints, every
-    joint below them (toes) and their End Sites."""
-    feet = [idx["foot_l"], idx["foot_r"]]
-    joints = [j for j in range(clip.n_joints) if any(j == f or _is_descendant(clip.parents, j, f) for f in feet)]
+def _foot_points(clip: BvhClip, pose: BvhPose, foot: int) -> np.ndarray:
+    """The source's points of one foot ``(F, P, 3)``, file units and axes: the foot joint,
+    every joint below it (toes) and their End Sites."""
+    joints = [j for j in range(clip.n_joints) if j == foot or _is_descendant(clip.parents, j, foot)]
     sites = [e for e, parent in enumerate(clip.end_site_parents) if parent in joints]
     return np.concatenate([pose.positions[:, joints], pose.end_positions[:, sites]], axis=1)
+
+
+def _place_feet(kin: HumanoidKinematics, qpos: np.ndarray, targets: dict[str, np.ndarray],
+                directions: dict[str, np.ndarray], wanted: np.ndarray) -> np.ndarray:
+    """Bend or stretch each leg so that its foot's lowest sole point goes to ``wanted``.
+
+    Two-bone inverse kinematics on our own segment lengths: the ankle moves vertically by the
+    height error (the foot keeps its orientation target), the knee stays on its side of the
+    hip-ankle line, and the leg is solved again from the new thigh and shank directions by
+    :func:`_solve_hinges` (joint ranges included), twice, since the ankle's range can change
+    the foot's tilt once the shank moves.  Used where the source's foot is on or near the
+    floor: without it, a foot our joint ranges leave on its toe corner holds the root up and
+    the other foot hovers above the floor where the source's stands on it.
+
+    Parameters
+    ----------
+    qpos : (K, 40)
+        Poses; only the hinges change.
+    targets, directions : dict
+        As for :func:`_solve_hinges`; the legs' directions are replaced.
+    wanted : (K, 2) float
+        Height of the lowest sole point of the left and right foot, metres; NaN leaves it.
+    """
+    qpos = qpos.copy()
+    dirs = dict(directions)
+    for _ in range(2):
+        pos, rot = kin.forward(qpos)
+        sole = kin.sole_points(qpos)[:, :, 2].reshape(-1, 2, 4).min(axis=2)
+        for s, side in enumerate("lr"):
+            dz = np.nan_to_num(wanted[:, s] - sole[:, s])
+            hip, knee, ankle = (pos[:, _BODY_INDEX[f"{b}_{side}"]] for b in ("thigh", "shank", "foot"))
+            l1 = np.linalg.norm(knee - hip, axis=1)
+            l2 = np.linalg.norm(ankle - knee, axis=1)
+            axis = np.einsum("kij,j->ki", rot[:, _BODY_INDEX[f"shank_{side}"]], kin.model.jnt_axis[kin.model.joint(f"knee_{side}").id])
+            reach = ankle + dz[:, None] * np.array([0.0, 0.0, 1.0]) - hip
+            d = np.clip(np.linalg.norm(reach, axis=1), np.abs(l1 - l2) + 1e-4 * (l1 + l2), (1.0 - 1e-6) * (l1 + l2))
+            u = _unit(reach)
+            w = _unit(np.cross(u, axis))  # the side a flexed knee lies on
+            cos_a = np.clip((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0, 1.0)
+            new_knee = l1[:, None] * (cos_a[:, None] * u + np.sqrt(1.0 - cos_a * cos_a)[:, None] * w)
+            moved = dz != 0.0  # feet away from the floor (no height wanted) keep the source's directions
+            dirs[f"thigh_{side}"] = np.where(moved[:, None], _unit(new_knee), dirs[f"thigh_{side}"])
+            dirs[f"shank_{side}"] = np.where(moved[:, None], _unit(d[:, None] * u - new_knee), dirs[f"shank_{side}"])
+        qpos[:, 7:] = _solve_hinges(kin, targets, dirs)
+    return qpos
 
 
 def _level_foot(target: np.ndarray, toe_dir: np.ndarray, ref_pitch_sin: float) -> np.ndarray:
@@ -1119,8 +1186,9 @@ def retarget_bvh(
         Keep the floor contact of the source, frame by frame: our lowest sole point is put at
         the height of the source's lowest foot point above the floor
         (:attr:`RetargetedBvh.source_foot_height_m`), or on the floor where the source's
-        feet go below their contact height (only the root's height moves), and our feet
-        follow the source's ankle -> toe bones kept level across (:func:`_level_foot`).
+        feet go below their contact height (the root's height moves), each foot near the
+        floor is put at its own source foot's height by its leg (:func:`_place_feet`), and
+        our feet follow the source's ankle -> toe bones kept level across (:func:`_level_foot`).
         ``False``: the feet take the source joints' rotations as they are and the clip gets
         one height offset (the lowest sole's 25th percentile on the floor), which reproduces
         a BVH of our own humanoid exactly.
