@@ -262,6 +262,7 @@ class SkeletonMarkerModel:
         self.labels = list(solver.marker_labels)
         self.cluster_tol_m = cluster_tol_m
         self.grid_gate_m = grid_gate_m
+        self.max_roots = 3
         cs = solver._cold
         self._tables = cs
         n_b = len(cs.parent)
@@ -468,7 +469,16 @@ class SkeletonMarkerModel:
             return None, none, 0.0
         tree = cKDTree(points)
         best: tuple[np.ndarray | None, np.ndarray, float] = (None, none, 0.0)
-        for q_root in self._root_candidates(points):
+        roots = self._root_candidates(points)
+        if len(roots) > self.max_roots:
+            # The grid search costs ~0.1 s per root: keep the roots whose trunk (the rigid
+            # clusters' markers, spine at rest) lies best on the points.
+            trunk = np.zeros(len(self.labels), bool)
+            for _, own in self._clusters[:3]:
+                trunk[own] = True
+            cost = [self._capped(self.markers(self._state(q))[trunk], tree) for q in roots]
+            roots = [roots[i] for i in np.argsort(cost)[: self.max_roots]]
+        for q_root in roots:
             q = self._grid_pose(q_root, points, tree)
             q, idx = self._refine(q, points, (0.08, 0.04, 0.02, 0.015), 60)
             score = self._score(q, points, idx)
@@ -495,7 +505,44 @@ class SkeletonMarkerModel:
         q, idx = self._refine(q_pred, points, (gates[0], gates[1]), self.solver.params.max_iterations,
                               prior=q_pred[7:], pred=pred, trusted=trusted)
         q, idx = self._recover_limbs(q, idx, points, trusted, gates)
+        q, idx = self._shell_rescue(q, idx, points, trusted, gates)
         return self._state(q, q_prev), idx, self._score(q, points, idx)
+
+    def _shell_rescue(self, q: np.ndarray, idx: np.ndarray, points: np.ndarray, trusted: np.ndarray,
+                      gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """A marker still unlabelled takes a free point when that point is the only one at the
+        marker's fixed distance from its body's joint centre (within 15 mm) and within twice the wide
+        gate of the fitted model: a hand marker alone on its body is found this way after a fast
+        wrist turn the refit did not follow."""
+        missing = np.flatnonzero(idx < 0)
+        free = np.ones(len(points), bool)  # untrusted points too: the shell test is the check
+        free[idx[idx >= 0]] = False
+        if missing.size == 0 or not free.any():
+            return q, idx
+        cs = self._tables
+        if not hasattr(self, "_marker_body"):
+            self._marker_body = np.argmax(np.array(cs.own_markers), axis=0)
+        centres = self.solver.joint_centres(q)                                   # (B, 3)
+        X = self.markers(self._state(q))
+        cand_pts = np.flatnonzero(free)
+        taken = False
+        for m in missing:
+            r = np.linalg.norm(points[cand_pts] - centres[self._marker_body[m]], axis=1)
+            near = np.linalg.norm(points[cand_pts] - X[m], axis=1) < 2.0 * gates[0]
+            hit = cand_pts[near & (np.abs(r - cs.child_radius[m]) < 0.015)]
+            if hit.size == 1 and hit[0] not in idx:
+                idx = idx.copy()
+                idx[m] = hit[0]
+                taken = True
+        if taken:
+            ok = idx >= 0
+            obs = np.full((len(self.labels), 3), np.nan)
+            obs[ok] = points[idx[ok]]
+            q, _ = self._fit(q, obs, ok, self.solver.params.max_iterations, prior=q[7:])
+            # The refit must explain every label it was given; one it cannot is let go.
+            res = np.linalg.norm(self.markers(self._state(q)) - obs, axis=1)
+            idx = np.where(ok & (np.nan_to_num(res, nan=0.0) > gates[1]), -1, idx)
+        return q, idx
 
     def _limbs(self) -> list[tuple[int, int, np.ndarray]]:
         """Limb chains ``(b, c, markers)``: a three-hinge body, its one-hinge child, and the markers
@@ -534,7 +581,9 @@ class SkeletonMarkerModel:
             return q, idx
         best_n = int((idx >= 0).sum())
         for b, c, mask in self._limbs():
-            if (idx[mask] >= 0).all():
+            # Only a limb that lost at least half its markers is searched again: one or two
+            # markers missing are usually hidden, and the others hold the limb.
+            if (idx[mask] < 0).sum() < max(1, mask.sum() // 2):
                 continue
             pin.framesForwardKinematics(self.solver.model, self.solver.data, q)
             par = cs.parent[b]
@@ -741,6 +790,8 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
         state, idx, score = init(int(f))
         if state is not None and score > best[3]:
             best = (int(f), state, idx, score)
+        if state is not None and (idx >= 0).sum() >= 0.95 * min(M, counts[f]):
+            break  # a fit that explains (nearly) every point: no need to look further
     if best[1] is None:
         for f in np.argsort(-counts):  # every frame, most points first, until one fits
             state, idx, score = init(int(f))
