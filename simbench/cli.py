@@ -1,7 +1,8 @@
 """``simbench`` command line.
 
-Every error a user can cause (a bad scenario field, a missing file, no GL) prints
-one line naming the file, the field, the value and the fix, and exits with code 2.
+Every error a user can cause (a bad scenario field, a missing file, no GL, an
+``--out`` that is not the bench's to replace) prints one line naming the file, the
+field, the value and the fix, and exits with code 2. Exit codes: ``simbench.cli_common``.
 """
 
 from __future__ import annotations
@@ -11,9 +12,11 @@ from pathlib import Path
 
 import typer
 
-from simbench.cli_common import console, parse_overrides, progress_bar, user_errors
+from simbench.cli_common import EXIT_STAGE_FAILED, console, parse_overrides, print_error, progress_bar, run_app, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Simulation-validated test bench for optical motion capture.")
+OUT_HELP = ("output folder; an earlier simbench output (a folder holding .simbench-output.json) or an empty "
+            "folder is replaced when the run completes, any other existing path is refused")
 bench_app = typer.Typer(no_args_is_help=True, help="Benchmarks that print figures with a reference measured in the same run.")
 app.add_typer(bench_app, name="bench")
 
@@ -43,39 +46,51 @@ def info(scenario: Path = typer.Argument(..., help="scenario TOML"),
 @app.command()
 @user_errors
 def render(scenario: Path = typer.Argument(..., help="scenario TOML"),
-           out: Path = typer.Option(..., "--out", help="output directory (replaced when the render completes)"),
+           out: Path = typer.Option(..., "--out", help=OUT_HELP),
            png: bool = typer.Option(False, "--png", help="also write every frame as PNG")) -> None:
     """Render a scenario: per-camera MP4, ground truth, calibration, contact sheet."""
+    from simbench.output_dir import replaceable_state
     from simbench.rendering import render_scenario
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario)
+    replaceable_state(out)  # refuse a path that is not the bench's before anything renders
     prog, advance = progress_bar(f"render {sc.name}", sc.n_frames)
     with prog:
         seq = render_scenario(sc, out, png=png, progress=advance)
     gt = seq.ground_truth
     console.print(f"wrote {out}/ : {len(gt.camera_names)} cameras x {gt.n_frames} frames, "
-                  f"{len(gt.marker_names)} markers, mean shutter sub-frames {gt.n_subframes.mean():.1f}")
+                  f"{len(gt.marker_names)} markers, mean shutter sub-frames {gt.n_subframes.mean():.1f}",
+                  markup=False, highlight=False)
 
 
 @app.command()
 @user_errors
 def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
-        out: Path = typer.Option(None, "--out", help="output directory (default: out/<scenario name>)"),
+        out: Path = typer.Option(None, "--out", help=OUT_HELP + " (default: out/<scenario name>)"),
         set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set sensor.exposure_ms=20")) -> None:
-    """Render, run the capture pipeline, score against ground truth; write metrics.json and report.md."""
+    """Render, run the capture pipeline, score against ground truth; write metrics.json and report.md.
+
+    Exit code 3: the run finished but a stage after rendering failed (e.g. an export); metrics.json and report.md are written and name the stage.
+    """
+    from simbench.output_dir import default_run_dir, replaceable_state
     from simbench.run import run_scenario
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario, overrides=parse_overrides(set_))
-    out = out or Path("out") / sc.name
+    out = out if out is not None else default_run_dir(sc.name, scenario)
+    replaceable_state(out)  # refuse a path that is not the bench's before anything renders
     prog, advance = progress_bar(f"run {sc.name}", sc.n_frames)
     with prog:
         result = run_scenario(sc, out, progress=advance)
-    console.print(f"wrote {out}/metrics.json and {out}/report.md")
+    console.print(f"wrote {out}/metrics.json and {out}/report.md", markup=False, highlight=False)
     width = max(len(k) for k in result.metrics)
     for k, v in sorted(result.metrics.items()):
         print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+    for f in result.failures:
+        print_error(f"{out}: {f.line()} (the run's other outputs, metrics.json and report.md are written)")
+    if result.failures:
+        raise typer.Exit(EXIT_STAGE_FAILED)
 
 
 @app.command("list")
@@ -123,7 +138,7 @@ app.add_typer(study_app, name="study")
 
 
 def main() -> None:
-    app()
+    run_app(app)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from simbench.cli_common import console, parse_overrides, user_errors
@@ -40,7 +41,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
     sw = load_sweep(sweep_file, extra_set=_overrides(set_))
     db = db or default_db_path(sw)
     dup = f" ({sw.duplicates} duplicate samples dropped)" if sw.duplicates else ""
-    console.print(f"sweep [bold]{sw.name}[/]: {len(sw.runs)} runs{dup} -> {db}", highlight=False)
+    console.print(f"sweep [bold]{escape(sw.name)}[/]: {len(sw.runs)} runs{dup} -> {escape(str(db))}", highlight=False)
     if dry_run:
         for r in sw.runs:
             print(r.run_id, " ".join(f"{k}={v}" for k, v in r.factors.items()))
@@ -55,17 +56,18 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
         prog.update(task, completed=p.done, failed=p.failed, skipped=p.skipped)
         if p.last is not None and p.last.status != "ok":
             first = p.last.error.splitlines()[0] if p.last.error else ""
-            prog.console.print(f"[red]failed[/] run {p.last.run_id} ({_factors(p.last.factors)}): {first}", highlight=False)
+            prog.console.print(f"[red]failed[/] run {p.last.run_id} ({escape(_factors(p.last.factors))}): {escape(first)}",
+                               highlight=False)
 
     with prog:
         summary = run_sweep(sw, db, workers=workers, scheduler=scheduler, resume=resume, outputs=outputs,
                             on_progress=on_progress)
     console.print(f"{summary.ran} runs in {summary.wall_s:.1f} s ({summary.failed} failed, {summary.skipped} already done); "
-                  f"database {summary.db}", highlight=False)
+                  f"database {summary.db}", highlight=False, markup=False)
     if summary.not_ingested:
         console.print(f"{summary.not_ingested} runs are stored in {summary.db.parent / 'results'} but not yet in the "
                       f"database (it was locked by another process); `simbench report` or `--resume` ingests them",
-                      highlight=False)
+                      highlight=False, markup=False)
     if summary.failed:
         raise typer.Exit(1)
 
@@ -82,7 +84,7 @@ def report(db: Path = typer.Argument(..., help="results database written by `sim
     from simbench.sweep_report import write_sweep_report
 
     md = write_sweep_report(db, out, sweep=sweep_name, n_worst=worst)
-    console.print(f"wrote {md} and {md.with_suffix('.html')}", highlight=False)
+    console.print(f"wrote {md} and {md.with_suffix('.html')}", highlight=False, markup=False)
 
 
 def check(suite: str = typer.Option(..., "--suite", help="suite name in the suites file, e.g. ci"),
@@ -96,7 +98,12 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
           workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="local worker processes (default: all cores)"),
           scheduler: Optional[str] = typer.Option(None, "--scheduler", help="run on a Dask cluster: tcp://HOST:PORT"),
           verbose: bool = typer.Option(False, "--verbose", "-v", help="list every metric, not only the changed ones")) -> None:
-    """Run a suite of scenarios and compare every metric with the baseline; exit 1 on any regression."""
+    """Run a suite of scenarios and compare every metric with the baseline.
+
+    A scenario that cannot run (its file is missing or has a bad field, or the run raises) is one row "error: <cause>"; the others still run.
+
+    Exit codes: 0 every metric within tolerance; 1 a metric regressed, is missing, or has no tolerance; 2 a bad command line, suites file or baseline (one line, nothing run); 3 a scenario could not run (whether or not others regressed).
+    """
     from simbench import regression as rg
 
     suites = rg.load_suites(suites_file)
@@ -104,29 +111,39 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
     base_path = baseline or rg.default_baseline_path(suites_file, suite)
     base = rg.load_baseline(base_path)
     t0 = time.perf_counter()
-    records = _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler)
+    records = _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler, strict=False)
     checks = rg.compare(records, base, suites.tolerances_for(suite))
     wall = time.perf_counter() - t0
     out_console = Console() if sys.stdout.isatty() else Console(width=160)
     rg.print_checks(checks, out_console, suite=suite, baseline=base_path, verbose=verbose, wall_s=wall)
     if junit:
         rg.write_junit(checks, junit, suite=suite, wall_s=wall)
-        console.print(f"wrote {junit}", highlight=False)
-    if rg.failed(checks):
-        raise typer.Exit(1)
+        console.print(f"wrote {junit}", highlight=False, markup=False)
+    code = rg.exit_code(checks)
+    if code:
+        raise typer.Exit(code)
 
 
-def _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler):
+def _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler, strict: bool = True):
+    """Run the suite; ``{scenario name: record}`` in suite order. Scenarios that cannot be
+    resolved raise (``strict``, for baselines) or become failed records (``check``)."""
     out_dir = (out or Path("out") / "check" / suite) if outputs else None
-    runs = suites.runs(suite, only=only, extra_set=_overrides(set_))
+    if strict:
+        runs, unrunnable = suites.runs(suite, only=only, extra_set=_overrides(set_)), {}
+    else:
+        runs, unrunnable = suites.resolve(suite, only=only, extra_set=_overrides(set_))
     prog = _runs_progress(f"suite {suite}")
-    task = prog.add_task(f"suite {suite}", total=len(runs), failed=0, skipped=0)
+    task = prog.add_task(f"suite {suite}", total=len(runs) + len(unrunnable), failed=len(unrunnable), skipped=0,
+                         completed=len(unrunnable))
 
     def on_record(rec, n_done: int, n_failed: int) -> None:
-        prog.update(task, completed=n_done, failed=n_failed)
+        prog.update(task, completed=n_done + len(unrunnable), failed=n_failed + len(unrunnable))
 
     with prog:
-        return rg.run_suite(runs, out_dir=out_dir, workers=workers, scheduler=scheduler, on_record=on_record)
+        records = rg.run_suite(runs, out_dir=out_dir, workers=workers, scheduler=scheduler, on_record=on_record)
+    records.update({name: rg.unrunnable_record(suite, name, err) for name, err in unrunnable.items()})
+    order = [sc.name for sc in suites.get(suite).scenarios]
+    return {name: records[name] for name in order if name in records}
 
 
 baseline_app = typer.Typer(no_args_is_help=True, help="Baselines of regression suites.")
@@ -147,7 +164,7 @@ def baseline_update(suite: str = typer.Option(..., "--suite", help="suite name i
     path = baseline or rg.default_baseline_path(suites_file, suite)
     records = _run_suite(rg, suites, suite, [], [], None, False, workers, scheduler)
     rg.write_baseline(path, suite, records)
-    console.print(f"wrote {path}: {len(records)} scenarios", highlight=False)
+    console.print(f"wrote {path}: {len(records)} scenarios", highlight=False, markup=False)
 
 
 def register(app: typer.Typer) -> None:

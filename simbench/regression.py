@@ -40,10 +40,11 @@ from typing import Any, Callable, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.results_db import STATUS_OK, RunRecord, atomic_write_bytes
+from simbench.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
 from simbench.scenario import load_scenario, validation_error_to_scenario_error
 from simbench.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
@@ -52,6 +53,11 @@ WORSE = ("higher", "lower", "either")
 # Status of one metric comparison; the first four fail the check.
 REGRESSED, MISSING, ERROR, OK, IMPROVED, NEW = "regressed", "missing", "error", "ok", "improved", "new"
 FAILING = (REGRESSED, MISSING, ERROR)
+#: The metric name of the one row of a scenario that could not run.
+RUN_ROW = "(run)"
+
+#: ``simbench check`` exit codes (also in its --help and the README).
+EXIT_PASS, EXIT_REGRESSION, EXIT_COULD_NOT_RUN = 0, 1, 3
 
 
 class _Model(BaseModel):
@@ -129,23 +135,55 @@ class Suites:
         return list(self.get(name).tolerances.items()) + list(self.spec.tolerances.items())
 
     def runs(self, name: str, only: list[str] | tuple[str, ...] = (), extra_set: dict[str, Any] | None = None) -> list[RunSpec]:
-        """The suite's scenarios resolved (suite ``set``, scenario ``set``, then ``extra_set``)."""
+        """The suite's scenarios resolved (suite ``set``, scenario ``set``, then ``extra_set``);
+        raises :class:`ScenarioError` for the first that cannot be resolved."""
+        runs, unrunnable = self.resolve(name, only, extra_set)
+        if unrunnable:
+            raise next(iter(unrunnable.values()))
+        return runs
+
+    def resolve(self, name: str, only: list[str] | tuple[str, ...] = (),
+                extra_set: dict[str, Any] | None = None) -> tuple[list[RunSpec], dict[str, ScenarioError]]:
+        """``(runs, unrunnable)``: the suite's scenarios that resolve, and ``{scenario name:
+        error}`` for those whose file is missing or does not validate with the suite's
+        overrides (``simbench check`` shows each as an error row and goes on).
+
+        Raises :class:`ScenarioError` for mistakes of the command line itself: an
+        ``--only`` name not in the suite, or an ``extra_set`` (``--set``) that breaks a
+        scenario which resolves without it.
+        """
         suite = self.get(name)
         known = [s.name for s in suite.scenarios]
         for o in only:
             if o not in known:
                 raise ScenarioError(self.path, f"suites.{name}.scenarios", o, f"--only names a scenario of the suite: {', '.join(known)}")
-        runs = []
+        extra = flatten_dotted(extra_set or {})
+        runs: list[RunSpec] = []
+        unrunnable: dict[str, ScenarioError] = {}
         for i, s in enumerate(suite.scenarios):
             if only and s.name not in only:
                 continue
             path = (self.path.parent / s.file).resolve()
-            overrides = {**suite.set, **s.set, **flatten_dotted(extra_set or {})}
+            own = {**suite.set, **s.set}
+            overrides = {**own, **extra}
             if not path.is_file():
-                raise ScenarioError(self.path, f"suites.{name}.scenarios[{i}].file", s.file, f"file not found (looked for {path})")
-            sc = load_scenario(path, overrides=overrides)
+                unrunnable[s.name] = ScenarioError(self.path, f"suites.{name}.scenarios[{i}].file", s.file,
+                                                   f"file not found (looked for {path})")
+                continue
+            try:
+                sc = load_scenario(path, overrides=overrides)
+            except ScenarioError as exc:
+                if not extra:
+                    unrunnable[s.name] = exc
+                    continue
+                try:
+                    load_scenario(path, overrides=own)
+                except ScenarioError as own_exc:
+                    unrunnable[s.name] = own_exc
+                    continue
+                raise ScenarioError(exc.path, f"--set {exc.field}", exc.value, exc.allowed) from None
             runs.append(RunSpec(run_id_for(sc, overrides), len(runs), f"check:{name}", {"scenario": s.name}, overrides, sc))
-        return runs
+        return runs, unrunnable
 
 
 def load_suites(path: str | Path) -> Suites:
@@ -287,7 +325,7 @@ def compare(records: dict[str, RunRecord], baseline: Baseline, patterns: list[tu
     for name, rec in records.items():
         base = baseline.scenarios.get(name)
         if rec.status != STATUS_OK:
-            checks.append(MetricCheck(name, "(run)", nan, nan, ERROR, note=rec.error.splitlines()[0] if rec.error else "failed"))
+            checks.append(MetricCheck(name, RUN_ROW, nan, nan, ERROR, note=rec.error.splitlines()[0] if rec.error else "failed"))
             continue
         if base is None:
             for m, v in sorted(rec.metrics.items()):
@@ -312,6 +350,26 @@ def failed(checks: list[MetricCheck]) -> bool:
     return any(c.failing for c in checks)
 
 
+def could_not_run(checks: list[MetricCheck]) -> list[MetricCheck]:
+    """The rows of scenarios that could not run (missing or invalid file, a run that raised)."""
+    return [c for c in checks if c.metric == RUN_ROW and c.status == ERROR]
+
+
+def exit_code(checks: list[MetricCheck]) -> int:
+    """3 if any scenario could not run (the gate could not judge it), else 1 on any
+    regression (or missing metric, or metric without a tolerance), else 0."""
+    if could_not_run(checks):
+        return EXIT_COULD_NOT_RUN
+    return EXIT_REGRESSION if failed(checks) else EXIT_PASS
+
+
+def unrunnable_record(suite: str, scenario: str, error: BaseException | str) -> RunRecord:
+    """The failed record of a suite scenario that could not even be resolved."""
+    return RunRecord(run_id=f"unresolved:{scenario}", sweep=f"check:{suite}", run_index=-1, scenario=scenario,
+                     scenario_hash="", factors={"scenario": scenario}, parameters={}, status=STATUS_FAILED,
+                     error=str(error))
+
+
 def _fmt(v: float) -> str:
     return "—" if not math.isfinite(v) else f"{v:.4g}"
 
@@ -334,7 +392,7 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
     scen = sorted({c.scenario for c in checks})
     counts = {s: sum(c.status == s for c in checks) for s in (REGRESSED, MISSING, ERROR, IMPROVED, NEW, OK)}
     if shown:
-        t = Table(title=f"simbench check --suite {suite} against {baseline}", title_justify="left")
+        t = Table(title=escape(f"simbench check --suite {suite} against {baseline}"), title_justify="left")
         t.add_column("scenario", no_wrap=True)
         t.add_column("metric", no_wrap=True)
         t.add_column("baseline", justify="right", no_wrap=True)
@@ -348,22 +406,25 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
         order = {REGRESSED: 0, MISSING: 1, ERROR: 2, IMPROVED: 3, NEW: 4, OK: 5}
         for c in sorted(shown, key=lambda c: (order[c.status], c.scenario, c.metric)):
             st = _STYLE[c.status]
-            row = [c.scenario, c.metric, _fmt(c.baseline), _fmt(c.current), _change(c),
+            row = [escape(c.scenario), escape(c.metric), _fmt(c.baseline), _fmt(c.current), _change(c),
                    c.tolerance.describe() if c.tolerance else "", f"[{st}]{c.status.upper()}[/]"]
             if with_notes:
-                row.append("" if c.note in _SCENARIO_NOTES else c.note)
+                note = "" if c.note in _SCENARIO_NOTES else c.note
+                row.append(escape(f"error: {note}" if c.metric == RUN_ROW and c.status == ERROR else note))
             t.add_row(*row)
         console.print(t)
     for name in scen:
         notes = {c.note for c in checks if c.scenario == name and c.note in _SCENARIO_NOTES}
         for n in sorted(notes):
-            console.print(f"note: {name}: {n}", highlight=False)
+            console.print(f"note: {name}: {n}", highlight=False, markup=False)
     n_fail = counts[REGRESSED] + counts[MISSING] + counts[ERROR]
     verdict = "[bold red]FAIL[/]" if n_fail else "[bold green]PASS[/]"
     took = f" in {wall_s:.0f} s" if wall_s is not None else ""
-    console.print(f"{verdict} suite {suite}: {len(checks)} metrics of {len(scen)} scenarios{took}: "
+    console.print(f"{verdict} suite {escape(suite)}: {len(checks)} metrics of {len(scen)} scenarios{took}: "
                   f"{counts[REGRESSED]} regressed, {counts[MISSING]} missing, {counts[ERROR]} errors, "
-                  f"{counts[IMPROVED]} improved, {counts[NEW]} new, {counts[OK]} within tolerance", highlight=False)
+                  f"{counts[IMPROVED]} improved, {counts[NEW]} new, {counts[OK]} within tolerance"
+                  + (f"; {len(could_not_run(checks))} scenarios could not run" if could_not_run(checks) else ""),
+                  highlight=False)
 
 
 def write_junit(checks: list[MetricCheck], path: str | Path, suite: str, wall_s: float = 0.0) -> Path:

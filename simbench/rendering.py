@@ -3,15 +3,12 @@
 ``render_scenario`` streams frames to MP4 (and optionally PNG) while it renders, keeps
 the ground truth of every frame, and writes everything into a temporary directory
 that replaces ``out`` only when the render has finished: an interrupted render leaves
-nothing half-written.
+nothing half-written (:mod:`simbench.output_dir`: which paths may be replaced).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator
@@ -21,6 +18,7 @@ import numpy as np
 
 from simbench.bench import Bench
 from simbench.ground_truth import GroundTruth
+from simbench.output_dir import AtomicOutputDir  # noqa: F401  (re-exported: the bench's output folders)
 from simbench.render.contact_sheet import contact_sheet
 from simbench.render.frames import FrameOutput, iterate_frames
 from simbench.render.video import Mp4Writer
@@ -129,38 +127,18 @@ def write_contact_sheet(bench: Bench, seq: RenderedSequence, path: Path, n_rows:
     contact_sheet(frames, {k: float(gt.times[k]) for k in rows}, path, overlays=overlays)
 
 
-class AtomicOutputDir:
-    """Write into a temporary sibling directory; move it into place on success only."""
-
-    def __init__(self, out: str | Path) -> None:
-        self.out = Path(out)
-        self.out.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=self.out.parent))
-
-    def __enter__(self) -> Path:
-        return self.tmp
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return
-        if self.out.exists():
-            old = self.out.with_name(f".{self.out.name}.old-{os.getpid()}")
-            os.replace(self.out, old)
-            os.replace(self.tmp, self.out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(self.tmp, self.out)
-
-
 def save_scenario_copy(scenario: Scenario, directory: Path) -> None:
     (directory / "scenario.json").write_text(json.dumps(scenario.model_dump(mode="json"), indent=2))
 
 
 def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, progress=None) -> RenderedSequence:
-    """``simbench render``: MP4 per camera, optional PNGs, ground truth, contact sheet."""
-    bench = Bench.from_scenario(scenario)
-    with AtomicOutputDir(out) as tmp:
+    """``simbench render``: MP4 per camera, optional PNGs, ground truth, contact sheet.
+
+    ``out`` is replaced only if it is an earlier bench output (or an empty folder);
+    see :mod:`simbench.output_dir`.
+    """
+    with AtomicOutputDir(out, scenario=scenario.name, kind="render") as tmp:  # refuses before anything renders
+        bench = Bench.from_scenario(scenario)
         on_frame, close = write_render_outputs(bench, tmp, png)
         try:
             seq = render_frames(bench, on_frame=on_frame, keep_frames=True, keep_ids=True, progress=progress)

@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import tempfile
 import time
 from contextlib import contextmanager
@@ -36,6 +35,8 @@ import duckdb
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+
+from simbench.output_dir import remove_stale_partials
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -189,10 +190,9 @@ class ResultStore:
                 for p in d.glob(".*.tmp"):
                     p.unlink(missing_ok=True)
                     n += 1
-        if self.runs_dir.is_dir():
-            for p in self.runs_dir.glob(".*.partial-*"):
-                shutil.rmtree(p, ignore_errors=True)
-                n += 1
+        # Partial run folders only when their writer is gone (another sweep on the same
+        # database may be writing its own right now): simbench.output_dir's rule.
+        n += len(remove_stale_partials(self.runs_dir))
         return n
 
     def statuses(self) -> dict[str, str]:

@@ -4,14 +4,23 @@ This is the only place that holds both the ground truth and the pipeline's outpu
 The pipeline gets what a user's session would have: the frames, a calibration (the
 exact one, or one estimated by ``mocap calibrate`` on rendered calibration views), a
 T-pose label template and the subject model; never the ground truth.
+
+A run never loses its metrics to a late failure: once the frames are rendered, a stage
+that raises is recorded (``RunResult.failures``, ``metrics.json``'s ``failed_stages``,
+the top of ``report.md``) and the run's outputs are still moved into place;
+``simbench run`` then exits with code 3 (``simbench.cli_common.EXIT_STAGE_FAILED``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
+import traceback
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Iterator
 
 import mujoco
 import numpy as np
@@ -20,12 +29,26 @@ from eval import marker_metrics, skeleton_metrics
 from mocap.labelling import LabelTemplate, save_template
 from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
 from mocap.detection import DetectionParams
+from mocap.errors import MocapInputError
 from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
 from simbench.bench import Bench
+from simbench.errors import SimbenchInputError
 from simbench.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
+
+
+@dataclass(frozen=True)
+class StageFailure:
+    """A stage of a run that raised; the run went on without that stage's output."""
+
+    stage: str  # e.g. "skeleton solve", "exports", "contact sheet", "report"
+    cause: str  # one line; paths name the final output folder, never the partial one
+    detail: str = ""  # the traceback (for sweep records and debugging), same path rule
+
+    def line(self) -> str:
+        return f"{self.stage} failed: {self.cause}"
 
 
 @dataclass
@@ -35,6 +58,46 @@ class RunResult:
     sequence: RenderedSequence
     capture: MarkerCapture | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
+    failures: list[StageFailure] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+def one_line_cause(exc: BaseException | str) -> str:
+    """First line of an exception's message; our own input errors without their class name
+    (their messages name the file and the fix), other exceptions with it."""
+    if isinstance(exc, str):
+        return exc
+    msg = (str(exc).strip().splitlines() or [""])[0]
+    if isinstance(exc, (SimbenchInputError, MocapInputError)) and msg:
+        return msg
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+class _Stages:
+    """Runs the stages after rendering, each in ``with stages.run(name)``; an ``Exception``
+    in one is recorded (stage and cause) instead of propagated. ``BaseException`` that is
+    not an ``Exception`` (KeyboardInterrupt, the CLI's signal exception) propagates."""
+
+    def __init__(self, public: Callable[[str], str]) -> None:
+        self._public = public
+        self.failures: list[StageFailure] = []
+
+    @contextmanager
+    def run(self, stage: str) -> Iterator[None]:
+        try:
+            yield
+        except Exception as exc:  # a late failure must not lose the run (module doc)
+            self.record(stage, exc)
+
+    def record(self, stage: str, cause: BaseException | str) -> None:
+        detail = "" if isinstance(cause, str) else "".join(traceback.format_exception(cause, limit=-8))
+        self.failures.append(StageFailure(stage, self._public(one_line_cause(cause)), self._public(detail)))
+
+    def failed(self, stage: str) -> bool:
+        return any(f.stage == stage for f in self.failures)
 
 
 def label_template(bench: Bench) -> LabelTemplate:
@@ -94,20 +157,40 @@ def score_markers(gt, capture: MarkerCapture) -> dict[str, float]:
     return metrics
 
 
+def preflight(scenario: Scenario) -> None:
+    """Settings only the pipeline reads, checked before anything renders (a user error
+    found after rendering would be a failed stage, exit 3, rather than exit 2)."""
+    from mocap.trackers import get_tracker
+
+    if scenario.subject.markers != "none":
+        get_tracker(scenario.markers_pipeline.tracker)  # TrackerNotFoundError names the known ones
+
+
 def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=None, write_outputs: bool = True) -> RunResult:
-    """Render, capture and score one scenario; write metrics.json, report and exports to ``out``."""
+    """Render, capture and score one scenario; write metrics.json, report and exports to ``out``.
+
+    ``out`` is replaced only if it is an earlier bench output or an empty folder
+    (:mod:`simbench.output_dir`; else :class:`~simbench.output_dir.OutputPathError`
+    before anything renders). Once the frames are rendered, a stage that raises (the
+    calibration session, the marker pipeline or its skeleton solve, scoring, the shirt
+    pipeline, the exports, the contact sheet, the report) does not lose the run: it is
+    listed in ``RunResult.failures`` (stage and one-line cause naming final paths), in
+    ``metrics.json`` (``failed_stages``) and at the top of ``report.md``, and the output
+    is moved into place as usual. An interruption (KeyboardInterrupt, or a signal the CLI
+    turns into an exception) or a failure before the frames exist discards everything.
+    """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    bench = Bench.from_scenario(scenario)
-    C = len(bench.cameras)
-    has_markers = len(bench.marker_names) > 0
-    stream = DetectionStream(C, DetectionParams(mode=scenario.sensor.mode)) if has_markers else None
-    keep = {0, scenario.n_frames // 2, scenario.n_frames - 1}
-    kept_frames: dict[int, np.ndarray] = {}
-
-    ctx = AtomicOutputDir(out) if (out is not None and write_outputs) else None
-    tmp = ctx.__enter__() if ctx else None
-    try:
+    preflight(scenario)
+    output = AtomicOutputDir(out, scenario=scenario.name, kind="run") if (out is not None and write_outputs) else None
+    with output if output is not None else nullcontext() as tmp:
+        stages = _Stages(output.public if output is not None else str)
+        bench = Bench.from_scenario(scenario)
+        C = len(bench.cameras)
+        has_markers = len(bench.marker_names) > 0
+        stream = DetectionStream(C, DetectionParams(mode=scenario.sensor.mode)) if has_markers else None
+        keep = {0, scenario.n_frames // 2, scenario.n_frames - 1}
+        kept_frames: dict[int, np.ndarray] = {}
         writer = write_render_outputs(bench, tmp, png=False) if tmp is not None else None
 
         def on_frame(fo):
@@ -138,59 +221,102 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             from simbench.calibration_run import run_calibration
 
             t1 = time.perf_counter()
-            calib_metrics, calib_report, estimated = run_calibration(bench, tmp)
+            with stages.run("calibration session"):
+                calib_metrics, calib_report, estimated = run_calibration(bench, tmp)
+                metrics.update(calib_metrics)
+                if scenario.markers_pipeline.calibration == "estimated":
+                    calibration = estimated
             timings["calibration_s"] = time.perf_counter() - t1
-            metrics.update(calib_metrics)
-            if scenario.markers_pipeline.calibration == "estimated":
-                calibration = estimated
-        if has_markers:
+        no_calibration = scenario.markers_pipeline.calibration == "estimated" and stages.failed("calibration session")
+        if has_markers and no_calibration:
+            stages.record("marker pipeline", "not run: it needs the estimated calibration, and the calibration session failed")
+        if has_markers and not no_calibration:
             t1 = time.perf_counter()
-            template = label_template(bench)
-            subject = subject_model(bench)
-            reference = bench.capture_reference()  # a real capture: rigid clusters instead of a skeleton
-            marker_model = reference.marker_model() if reference is not None else None
-            rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x7AC]))
-            capture = capture_from_detections(stream.detections, calibration, template, gt.times,
-                                              pipeline_params(scenario), rng, subject, stream.ms, marker_model=marker_model)
+            with stages.run("marker pipeline"):
+                template = label_template(bench)
+                subject = subject_model(bench)
+                reference = bench.capture_reference()  # a real capture: rigid clusters instead of a skeleton
+                marker_model = reference.marker_model() if reference is not None else None
+
+                def capture_with(params: MarkerPipelineParams) -> MarkerCapture:
+                    rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x7AC]))
+                    return capture_from_detections(stream.detections, calibration, template, gt.times,
+                                                   params, rng, subject, stream.ms, marker_model=marker_model)
+
+                try:
+                    capture = capture_with(pipeline_params(scenario))
+                except Exception as exc:
+                    if not scenario.markers_pipeline.solve_skeleton:
+                        raise
+                    # Keep the markers when only the skeleton solve fails: run again without
+                    # it; if that raises too, the marker pipeline itself failed (its cause).
+                    capture = capture_with(dataclasses.replace(pipeline_params(scenario), solve_skeleton=False))
+                    stages.record("skeleton solve", exc)
             timings["pipeline_s"] = time.perf_counter() - t1
-            metrics.update(score_markers(gt, capture))
+            if capture is not None:
+                with stages.run("scoring"):
+                    metrics.update(score_markers(gt, capture))
         shirt_report: list[str] = []
         if shirt:
             # The colour-shirt pipeline of seed 001 (simbench/shirt_run.py).
             from simbench.shirt_run import run_shirt_capture
 
             t1 = time.perf_counter()
-            shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp)
+            with stages.run("shirt pipeline"):
+                shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp)
+                metrics.update(shirt_metrics)
             timings["shirt_pipeline_s"] = time.perf_counter() - t1
-            metrics.update(shirt_metrics)
         metrics["run.frames"] = gt.n_frames
         metrics["run.cameras"] = C
         metrics["run.mean_subframes"] = float(gt.n_subframes.mean())
         timings["total_s"] = time.perf_counter() - t0
         if tmp is not None:
-            gt.save(tmp / "ground_truth")
-            cal = gt.calibration()
-            cal.save_opencv_yaml(tmp / "calibration_ground_truth.yml")
+            with stages.run("ground truth"):
+                gt.save(tmp / "ground_truth")
+                gt.calibration().save_opencv_yaml(tmp / "calibration_ground_truth.yml")
             save_scenario_copy(scenario, tmp)
             if capture is not None:
-                export_capture(capture, tmp / "exports", calibration, subject_model(bench))
-                save_template(label_template(bench), tmp / "exports" / "label_template.csv")
-                # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
-                if subject_model(bench) is not None:
-                    subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
-            _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
-            (tmp / "metrics.json").write_text(json.dumps({k: _jsonable(v) for k, v in sorted(metrics.items())}, indent=2))
+                with stages.run("exports"):
+                    export_capture(capture, tmp / "exports", calibration, subject_model(bench))
+                with stages.run("exports (label template, subject file)"):
+                    save_template(label_template(bench), tmp / "exports" / "label_template.csv")
+                    # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
+                    if subject_model(bench) is not None:
+                        subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
+            with stages.run("contact sheet"):
+                _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
             from simbench.report import write_run_report
 
-            write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
-                             calibration=calibration)
-    except BaseException:
-        if ctx is not None:
-            ctx.__exit__(RuntimeError, None, None)
-        raise
-    if ctx is not None:
-        ctx.__exit__(None, None, None)
-    return RunResult(metrics, Path(out) if out else None, seq, capture, timings)
+            with stages.run("report"):
+                write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
+                                 calibration=calibration)
+            _note_failures_in_report(tmp / "report.md", scenario, metrics, stages.failures)
+            write_metrics_json(tmp / "metrics.json", metrics, stages.failures)
+    return RunResult(metrics, Path(out) if out else None, seq, capture, timings, list(stages.failures))
+
+
+def write_metrics_json(path: Path, metrics: dict[str, float], failures: list[StageFailure]) -> None:
+    """``metrics.json``: every metric (NaN as null) and ``failed_stages`` (a list, empty when
+    every stage ran: ``[{"stage": ..., "cause": ...}]``)."""
+    data: dict[str, object] = {k: _jsonable(v) for k, v in sorted(metrics.items())}
+    data["failed_stages"] = [{"stage": f.stage, "cause": f.cause} for f in failures]
+    path.write_text(json.dumps(data, indent=2) + "\n")
+
+
+def _note_failures_in_report(path: Path, scenario: Scenario, metrics: dict[str, float],
+                             failures: list[StageFailure]) -> None:
+    """Put the failed stages at the top of ``report.md`` (a minimal report if it could not be written)."""
+    if not failures:
+        return
+    section = ["## Failed stages", "", "The run finished without the output of these stages:", ""]
+    section += [f"- **{f.stage}**: {f.cause}" for f in failures] + [""]
+    if path.is_file():
+        lines = path.read_text().splitlines()
+        lines[1:1] = [""] + section[:-1]  # after the title; the report's own blank line follows
+    else:
+        lines = [f"# simbench run: {scenario.name}", ""] + section + ["## Metrics", "", "| metric | value |", "|---|---|"]
+        lines += [f"| `{k}` | {_jsonable(v)} |" for k, v in sorted(metrics.items())] + [""]
+    path.write_text("\n".join(lines) + "\n")
 
 
 def _jsonable(v):

@@ -43,13 +43,16 @@ on. Results are stored by :mod:`simbench.results_db`.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import ctypes
 import hashlib
 import itertools
 import json
 import math
 import multiprocessing
 import os
+import signal
 import socket
+import sys
 import threading
 import time
 import tomllib
@@ -362,9 +365,15 @@ def execute_run(task: RunTask) -> RunRecord:
 
             result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
             metrics = {k: float(v) for k, v in result.metrics.items()}
-            return _record(task.spec, STATUS_OK, started_at=started, ended_at=time.time(), timings=dict(result.timings_s),
-                           versions=versions, worker=worker, out_dir=task.out_dir or "", metrics=metrics,
-                           per_frame=per_frame_table(result), warnings=_distinct(caught))
+            # A stage that failed after rendering (e.g. an export) fails the run; its
+            # metrics are kept with it (simbench.run: a run never loses its metrics).
+            status, error = STATUS_OK, ""
+            if not result.ok:
+                status = STATUS_FAILED
+                error = "; ".join(f.line() for f in result.failures) + "\n" + "\n".join(f.detail for f in result.failures)
+            return _record(task.spec, status, error=error, started_at=started, ended_at=time.time(),
+                           timings=dict(result.timings_s), versions=versions, worker=worker, out_dir=task.out_dir or "",
+                           metrics=metrics, per_frame=per_frame_table(result), warnings=_distinct(caught))
         except Exception as exc:  # a failing run is recorded, the sweep goes on
             tb = traceback.format_exc(limit=-6)
             return _record(task.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}\n{tb}", started_at=started,
@@ -388,16 +397,97 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+# Seconds a pool worker has, after SIGTERM, to remove its partial output folder and exit
+# before SIGALRM (default action: end the process) does it.
+WORKER_EXIT_S = 10
+
+
+class WorkerStopped(BaseException):
+    """SIGTERM in a pool worker: unwinds the run in progress (its partial output folder is
+    removed on the way), then the worker exits (:func:`_pool_execute`)."""
+
+
+def _worker_sigterm(signum, frame) -> None:
+    # Later SIGTERMs are ignored: when a multi-threaded parent dies the kernel may send the
+    # death signal more than once (the worker is handed to another of its threads first),
+    # and a second one must not cut the clean-up short. SIGALRM is the backstop.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.alarm(WORKER_EXIT_S)
+    f = frame
+    while f is not None and f.f_code is not _pool_execute.__code__:
+        f = f.f_back
+    if f is None:  # idle between runs: nothing to clean up
+        os._exit(128 + signal.SIGTERM)
+    raise WorkerStopped
+
+
+def _pool_execute(task: RunTask) -> RunRecord:
+    """:func:`execute_run` in a local pool worker. A stopped worker exits once the run has
+    unwound, rather than take the next run from the pool's queue."""
+    try:
+        return execute_run(task)
+    except WorkerStopped:
+        os._exit(128 + signal.SIGTERM)
+
+
+def _worker_init(parent_pid: int) -> None:
+    """Start-up of a local pool worker: it never outlives the sweep's parent process.
+
+    Ctrl-C in a terminal reaches the whole process group; the parent decides (it stops
+    the workers with SIGTERM), so workers ignore SIGINT. SIGTERM unwinds the run in
+    progress (partial outputs removed) and ends the worker within ``WORKER_EXIT_S``. On
+    Linux the kernel sends SIGTERM when the parent dies, even by SIGKILL
+    (``prctl(PR_SET_PDEATHSIG)``, via ctypes: the standard library has no binding);
+    elsewhere a watchdog thread polls the parent's pid.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_sigterm)
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            pr_set_pdeathsig = 1
+            armed = ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, int(signal.SIGTERM), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent_pid:  # the parent died before the line above took effect
+        os._exit(1)
+    if not armed:
+        def watchdog() -> None:
+            while os.getppid() == parent_pid:
+                time.sleep(1.0)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        threading.Thread(target=watchdog, name="simbench-parent-watchdog", daemon=True).start()
+
+
+def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Stop a pool now (interrupted sweep): no further runs start; each worker gets SIGTERM
+    (it removes its partial output and exits), SIGKILL if still alive after ``WORKER_EXIT_S``."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public API before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    deadline = time.monotonic() + WORKER_EXIT_S
+    for p in procs:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+
+
 def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
     """Run tasks on a spawn process pool, ``workers`` at a time; yield records as they finish.
 
     If a worker process dies (e.g. a crash in the GL driver), the runs it had in flight
-    are recorded as failed and the pool is restarted for the rest.
+    are recorded as failed and the pool is restarted for the rest. Workers die with the
+    parent (:func:`_worker_init`); an interrupted sweep stops them (:func:`_stop_workers`).
     """
     pending = list(reversed(tasks))
     ctx = multiprocessing.get_context("spawn")
     while pending:
-        pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
+                                      initargs=(os.getpid(),))
         inflight: dict[cf.Future, RunTask] = {}
         broken = False
         finished = False
@@ -405,7 +495,7 @@ def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
             while pending or inflight:
                 while pending and len(inflight) < workers and not broken:
                     t = pending.pop()
-                    inflight[pool.submit(execute_run, t)] = t
+                    inflight[pool.submit(_pool_execute, t)] = t
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
                 for fut in done:
                     t = inflight.pop(fut)
@@ -419,7 +509,9 @@ def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
                     break
             finished = True
         finally:
-            # Interrupted (Ctrl-C, consumer stopped): do not wait for runs in flight.
+            # Interrupted (Ctrl-C, SIGTERM, consumer stopped): stop the runs in flight.
+            if not finished:
+                _stop_workers(pool)
             pool.shutdown(wait=finished, cancel_futures=True)
 
 

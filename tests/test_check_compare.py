@@ -159,3 +159,49 @@ def test_unknown_suite_and_only_name_the_choices(tmp_path):
         suites.get("nightly_typo")
     with pytest.raises(ScenarioError, match="quickstart"):
         suites.runs("ci", only=["nope"])
+
+
+def test_exit_codes_tell_a_regression_from_a_scenario_that_could_not_run(baseline):
+    worse = dict(BASE, **{"markers.rmse_mm": 3.0})
+    regressed = rg.compare({"a": _rec("a", worse)}, baseline, PATTERNS)
+    assert rg.exit_code(regressed) == 1
+    crashed = rg.compare({"a": _rec("a", worse), "b": _rec("b", {}, status="failed", error="exports failed: x")},
+                         baseline, PATTERNS)
+    assert rg.exit_code(crashed) == 3 and [c.scenario for c in rg.could_not_run(crashed)] == ["b"]
+    assert rg.exit_code(rg.compare({"a": _rec("a", BASE)}, baseline, PATTERNS[:3])) == 1  # no tolerance: not a crash
+    assert rg.exit_code(rg.compare({"a": _rec("a", BASE), "b": _rec("b", BASE, h="bbb")}, baseline, PATTERNS)) == 0
+
+
+def test_check_shows_unrunnable_scenarios_as_error_rows_and_exits_3(tmp_path):
+    """A suite entry whose file is missing or has a bad field is its own row, not an exit-2 abort."""
+    from typer.testing import CliRunner
+
+    from simbench.cli import app
+
+    (tmp_path / "bad.toml").write_text('name = "bad"\n[lighting]\npreset = "custom"\n')
+    (tmp_path / "suites.toml").write_text(
+        '[tolerances]\n"*" = { worse = "either", rel = 0.05 }\n[suites.t]\n'
+        '[[suites.t.scenarios]]\nname = "badfield"\nfile = "bad.toml"\n'
+        '[[suites.t.scenarios]]\nname = "nofile"\nfile = "nope.toml"\n')
+    (tmp_path / "base.json").write_text('{"suite": "t", "scenarios": {}}')
+    r = CliRunner().invoke(app, ["check", "--suite", "t", "--suites", str(tmp_path / "suites.toml"),
+                                 "--baseline", str(tmp_path / "base.json"), "--junit", str(tmp_path / "j.xml")],
+                           env={"COLUMNS": "400"})
+    assert r.exit_code == 3, r.output
+    rows = {ln.split("│")[1].strip(): ln for ln in r.stdout.splitlines() if "│" in ln and "ERROR" in ln}
+    assert set(rows) == {"badfield", "nofile"}
+    assert f"error: {tmp_path / 'bad.toml'}: field" in rows["badfield"]
+    assert f"error: {tmp_path / 'suites.toml'}:" in rows["nofile"]
+    notes = " ".join(ln.split("│")[-2].strip() for ln in r.stdout.splitlines() if ln.count("│") > 8)
+    assert "[[lighting.lights]] entry" in notes  # no markup ate the brackets
+    assert "field 'suites.t.scenarios[1].file'" in notes
+    assert "2 scenarios could not run" in r.stdout
+    errors = {e.get("message") for e in ET.parse(tmp_path / "j.xml").getroot().iter("error")}
+    assert len(errors) == 2 and any("[[lighting.lights]]" in e for e in errors)
+
+
+def test_a_bad_set_on_the_command_line_is_still_exit_2(tmp_path):
+    suites = rg.load_suites("scenarios/suites.toml")
+    with pytest.raises(ScenarioError) as info:
+        suites.resolve("ci", extra_set={"sensor.exposure_ms": -1})
+    assert info.value.field.startswith("--set sensor.exposure_ms")

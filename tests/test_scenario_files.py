@@ -80,8 +80,11 @@ def test_interrupted_render_leaves_nothing_half_written(tmp_path, monkeypatch):
     """A failure mid-render removes the partial directory and keeps an older output intact."""
     from simbench import rendering
 
+    from simbench.output_dir import MARKER, OutputMarker
+
     out = tmp_path / "render"
     out.mkdir()
+    (out / MARKER).write_text(OutputMarker.for_this_process("quickstart", "render").to_json())  # an earlier bench output
     (out / "keep.txt").write_text("previous run")
     sc = load_scenario("scenarios/quickstart.toml", overrides={"duration_s": 0.2, "rig.count": 1})
     calls = {"n": 0}
