@@ -50,11 +50,11 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
     task = prog.add_task(sw.name, total=len(sw.runs), failed=0, skipped=0)
 
     def on_progress(p) -> None:
-        if p.last is None:  # start: runs already done do not count towards the speed (time left)
+        if p.event == "start":  # runs already done do not count towards the speed (time left)
             prog.reset(task, total=p.total, completed=p.done, failed=p.failed, skipped=p.skipped)
             return
         prog.update(task, completed=p.done, failed=p.failed, skipped=p.skipped)
-        if p.last is not None and p.last.status != "ok":
+        if p.event == "run" and p.last is not None and p.last.status != "ok":
             first = p.last.error.splitlines()[0] if p.last.error else ""
             prog.console.print(f"[red]failed[/] run {p.last.run_id} ({escape(_factors(p.last.factors))}): {escape(first)}",
                                highlight=False)
@@ -62,7 +62,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
     with prog:
         summary = run_sweep(sw, db, workers=workers, scheduler=scheduler, resume=resume, outputs=outputs,
                             on_progress=on_progress)
-    console.print(f"{summary.ran} runs in {summary.wall_s:.1f} s ({summary.failed} failed, {summary.skipped} already done); "
+    console.print(f"{summary.ran} runs in {summary.wall_s:.1f} s ({summary.failed} failed, {summary.skipped} already done or run by another sweep); "
                   f"database {summary.db}", highlight=False, markup=False)
     if summary.not_ingested:
         console.print(f"{summary.not_ingested} runs are stored in {summary.db.parent / 'results'} but not yet in the "

@@ -5,6 +5,7 @@ Layout next to the database file ``DB`` (e.g. ``out/sweeps/NAME/results.duckdb``
     results/<run_id>.json      one finished run (ok or failed): the commit marker
     frames/<run_id>.parquet    per-frame table of that run (marker error per frame)
     runs/<run_id>/             the run's outputs (videos, report.md, contact sheet)
+    claims/<run_id>.json       a run being computed, and by which process (RunClaims)
     results.duckdb             tables ``sweeps``, ``runs`` and ``metrics`` (long form)
 
 Writes are atomic per run, so a sweep killed with SIGKILL never leaves a half-recorded
@@ -23,6 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import socket
 import tempfile
 import time
 from contextlib import contextmanager
@@ -36,7 +38,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from simbench.output_dir import remove_stale_partials
+from simbench.output_dir import pid_alive, remove_stale_partials
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -185,11 +187,19 @@ class ResultStore:
     def remove_temporaries(self) -> int:
         """Delete half-written files and run folders a killed sweep left behind; return how many."""
         n = 0
+        # A temporary file is written and renamed within milliseconds: one older than a
+        # minute was left by a killed process; a younger one may be another sweep's (on
+        # the same database) being written right now.
+        cutoff = time.time() - 60.0
         for d in (self.results_dir, self.frames_dir):
             if d.is_dir():
                 for p in d.glob(".*.tmp"):
-                    p.unlink(missing_ok=True)
-                    n += 1
+                    try:
+                        if p.stat().st_mtime < cutoff:
+                            p.unlink()
+                            n += 1
+                    except FileNotFoundError:
+                        pass
         # Partial run folders only when their writer is gone (another sweep on the same
         # database may be writing its own right now): simbench.output_dir's rule.
         n += len(remove_stale_partials(self.runs_dir))
@@ -198,6 +208,62 @@ class ResultStore:
     def statuses(self) -> dict[str, str]:
         """``{run_id: status}`` of every stored run."""
         return {r.run_id: r.status for r in self.read_all()}
+
+
+class RunClaims:
+    """Which process computes which run, when several sweeps share one database folder.
+
+    ``claims/<run_id>.json`` (host and pid) is created with ``O_CREAT | O_EXCL``: exactly
+    one process gets it. A claim whose process is gone (same host, pid no longer exists)
+    is taken over; a claim from another host is respected. Claims are released when the
+    run's result is stored, and all at once when the sweep ends (also when interrupted).
+    Taking over a stale claim is not strictly exclusive (two processes may both see it
+    stale at the same instant); the cost is one run computed twice, which ingesting by
+    ``run_id`` makes harmless.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.dir = Path(root) / "claims"
+        self.held: set[str] = set()
+        self._me = {"host": socket.gethostname(), "pid": os.getpid()}
+
+    def _path(self, run_id: str) -> Path:
+        return self.dir / f"{run_id}.json"
+
+    def _stale(self, path: Path) -> bool:
+        try:
+            owner = json.loads(path.read_text())
+            host, pid = owner["host"], int(owner["pid"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return False  # being written right now, or unreadable: respect it
+        return host == self._me["host"] and not pid_alive(pid)
+
+    def claim(self, run_id: str) -> bool:
+        """Take ``run_id`` for this process; False when another live process holds it."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        path = self._path(run_id)
+        for _ in range(2):
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                if not self._stale(path):
+                    return False
+                path.unlink(missing_ok=True)
+                continue
+            with os.fdopen(fd, "w") as fh:
+                json.dump(self._me, fh)
+            self.held.add(run_id)
+            return True
+        return False
+
+    def release(self, run_id: str) -> None:
+        if run_id in self.held:
+            self._path(run_id).unlink(missing_ok=True)
+            self.held.discard(run_id)
+
+    def release_all(self) -> None:
+        for run_id in list(self.held):
+            self.release(run_id)
 
 
 def _ts(epoch: float) -> datetime | None:

@@ -67,7 +67,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunRecord
+from simbench.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
 from simbench.scenario import Scenario, load_scenario, validation_error_to_scenario_error
 
 VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
@@ -476,12 +476,14 @@ def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
             p.join(1.0)
 
 
-def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
+def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bool] | None = None) -> Iterator[RunRecord]:
     """Run tasks on a spawn process pool, ``workers`` at a time; yield records as they finish.
 
     If a worker process dies (e.g. a crash in the GL driver), the runs it had in flight
     are recorded as failed and the pool is restarted for the rest. Workers die with the
     parent (:func:`_worker_init`); an interrupted sweep stops them (:func:`_stop_workers`).
+    ``claim(task)`` is asked just before a task is submitted; False skips it (another
+    process is computing it).
     """
     pending = list(reversed(tasks))
     ctx = multiprocessing.get_context("spawn")
@@ -495,7 +497,11 @@ def iter_local(tasks: list[RunTask], workers: int) -> Iterator[RunRecord]:
             while pending or inflight:
                 while pending and len(inflight) < workers and not broken:
                     t = pending.pop()
+                    if claim is not None and not claim(t):
+                        continue
                     inflight[pool.submit(_pool_execute, t)] = t
+                if not inflight:
+                    break
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
                 for fut in done:
                     t = inflight.pop(fut)
@@ -538,24 +544,33 @@ def iter_dask(tasks: list[RunTask], scheduler: str) -> Iterator[RunRecord]:
         client.close()
 
 
-def iter_records(tasks: list[RunTask], workers: int | None = None, scheduler: str | None = None) -> Iterator[RunRecord]:
+def iter_records(tasks: list[RunTask], workers: int | None = None, scheduler: str | None = None,
+                 claim: Callable[[RunTask], bool] | None = None) -> Iterator[RunRecord]:
+    """Records of ``tasks`` as they finish (local pool, or Dask with ``scheduler``); tasks
+    for which ``claim`` says False are skipped (locally just before each is started, on
+    Dask all at the start)."""
+    if scheduler and claim is not None:
+        tasks = [t for t in tasks if claim(t)]
     if not tasks:
         return iter(())
     if scheduler:
         return iter_dask(tasks, scheduler)
-    return iter_local(tasks, min(workers or default_workers(), len(tasks)))
+    return iter_local(tasks, min(workers or default_workers(), len(tasks)), claim)
 
 
 # ---------------------------------------------------------------------------- a whole sweep
 @dataclass
 class SweepProgress:
-    """Counts passed to the progress callback after each finished run."""
+    """Counts passed to the progress callback at the start, after each finished run
+    (``event`` "run", ``last`` is its record) and after each run another process had
+    (``event`` "skip")."""
 
     total: int
     done: int = 0
     failed: int = 0
     skipped: int = 0
     last: RunRecord | None = None
+    event: Literal["start", "run", "skip"] = "start"
 
 
 @dataclass
@@ -582,6 +597,11 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
     Without ``resume`` the database folder must not hold any run of this sweep yet
     (raises :class:`SimbenchInputError` naming the fix). With ``resume``, runs whose
     result is stored with status ok are skipped; failed runs are run again.
+
+    Several sweeps on one database folder split the work: each run is claimed
+    (:class:`~simbench.results_db.RunClaims`) just before it starts; a run another live
+    process holds, or whose result another process stored since this sweep started, is
+    counted as skipped.
     """
     t0 = time.perf_counter()
     db = ResultsDB(db_path)
@@ -604,21 +624,43 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
     tasks = [RunTask(r, str(store.run_dir(r.run_id).resolve()) if outputs else None) for r in todo]
     records: list[RunRecord] = []
     not_ingested: set[str] = set()
-    for rec in iter_records(tasks, workers, scheduler):
-        if rec.out_dir:
-            rec.out_dir = os.path.relpath(rec.out_dir, store.root)
-        store.write(rec)
-        try:
-            db.ingest([rec])
-        except duckdb.Error:  # e.g. locked by a reader: the result file is safe, reconcile ingests it
-            not_ingested.add(rec.run_id)
-        rec.per_frame = None
-        records.append(rec)
+    claims = RunClaims(store.root)
+    started = time.time()
+
+    def claim(task: RunTask) -> bool:
+        rid = task.spec.run_id
+        if claims.claim(rid):
+            done = store.read(rid)  # finished by another sweep since this one looked?
+            if done is None or (done.status != STATUS_OK and done.ended_at < started):
+                return True
+            claims.release(rid)
+        prog.skipped += 1
         prog.done += 1
-        prog.failed += rec.status != STATUS_OK
-        prog.last = rec
+        prog.event = "skip"
         if on_progress:
             on_progress(prog)
+        return False
+
+    try:
+        for rec in iter_records(tasks, workers, scheduler, claim=claim):
+            if rec.out_dir:
+                rec.out_dir = os.path.relpath(rec.out_dir, store.root)
+            store.write(rec)
+            claims.release(rec.run_id)
+            try:
+                db.ingest([rec])
+            except duckdb.Error:  # e.g. locked by a reader: the result file is safe, reconcile ingests it
+                not_ingested.add(rec.run_id)
+            rec.per_frame = None
+            records.append(rec)
+            prog.done += 1
+            prog.failed += rec.status != STATUS_OK
+            prog.last = rec
+            prog.event = "run"
+            if on_progress:
+                on_progress(prog)
+    finally:
+        claims.release_all()
     try:
         db.reconcile()
         not_ingested.clear()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import time
 
 import numpy as np
 import pyarrow as pa
@@ -91,8 +93,13 @@ def test_reconcile_ingests_results_the_database_missed(tmp_path):
     for r in recs:
         db.store.write(r)  # written, then the process died before ingesting
     db.ingest(recs[:3])
-    (db.store.results_dir / ".half.json.abc.tmp").write_text("{")  # a write cut short
+    half = db.store.results_dir / ".half.json.abc.tmp"
+    half.write_text("{")  # a write cut short two minutes ago
+    os.utime(half, (time.time() - 120, time.time() - 120))
+    busy = db.store.results_dir / ".busy.json.def.tmp"
+    busy.write_text("{")  # another sweep on this database writing right now
     assert db.store.remove_temporaries() == 1
+    assert not half.exists() and busy.exists()
     assert db.reconcile() == 9
     assert db.reconcile() == 0
     assert len(db.runs()) == 12
