@@ -166,7 +166,7 @@ def _kabsch(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def match_rigid_cluster(local: np.ndarray, points: np.ndarray, tol_m: float, max_matches: int = 8,
-                        allowed: np.ndarray | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+                        allowed: np.ndarray | None = None, max_bases: int = 4) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """Places where a rigid marker cluster appears among unlabelled points.
 
     Parameters
@@ -189,36 +189,33 @@ def match_rigid_cluster(local: np.ndarray, points: np.ndarray, tol_m: float, max
         return []
     pts = points if allowed is None else np.where(allowed[:, None], points, np.nan)
     Dm = np.linalg.norm(local[:, None] - local[None], axis=2)
-    # Base triangle: the three markers spanning the largest area (most discriminative).
-    best, tri = -1.0, (0, 1, 2)
-    for a in range(k):
-        for b in range(a + 1, k):
-            for c in range(b + 1, k):
-                area = np.linalg.norm(np.cross(local[b] - local[a], local[c] - local[a]))
-                if area > best:
-                    best, tri = area, (a, b, c)
-    a, b, c = tri
+    # Base triangles: the triples spanning the largest areas (most discriminative); several, so
+    # that a cluster with one base marker hidden is still found.
+    triples = [(a, b, c) for a in range(k) for b in range(a + 1, k) for c in range(b + 1, k)]
+    areas = [np.linalg.norm(np.cross(local[b] - local[a], local[c] - local[a])) for a, b, c in triples]
+    bases = [triples[i] for i in np.argsort(areas)[::-1][:max_bases]]
     Dp = np.linalg.norm(pts[:, None] - pts[None], axis=2)
-    with np.errstate(invalid="ignore"):
-        ii, jj = np.nonzero(np.abs(Dp - Dm[a, b]) < tol_m)
     found = []
-    for i, j in zip(ii, jj):
+    for a, b, c in bases:
         with np.errstate(invalid="ignore"):
-            ks = np.flatnonzero((np.abs(Dp[j] - Dm[b, c]) < tol_m) & (np.abs(Dp[i] - Dm[a, c]) < tol_m))
-        for kk in ks:
-            if kk == i or kk == j:
-                continue
-            R, t = _kabsch(local[[a, b, c]], pts[[i, j, kk]])
-            world = local @ R.T + t
-            idx = assign_to_predictions(world, np.nan_to_num(pts, nan=1e9), tol_m)
-            use = idx >= 0
-            if use.sum() < 3:
-                continue
-            R, t = _kabsch(local[use], pts[idx[use]])
-            res = np.linalg.norm(local[use] @ R.T + t - pts[idx[use]], axis=1)
-            if res.max() > tol_m:
-                continue
-            found.append((R, t, idx, float(np.sqrt(np.mean(res**2)))))
+            ii, jj = np.nonzero(np.abs(Dp - Dm[a, b]) < tol_m)
+        for i, j in zip(ii, jj):
+            with np.errstate(invalid="ignore"):
+                ks = np.flatnonzero((np.abs(Dp[j] - Dm[b, c]) < tol_m) & (np.abs(Dp[i] - Dm[a, c]) < tol_m))
+            for kk in ks:
+                if kk == i or kk == j:
+                    continue
+                R, t = _kabsch(local[[a, b, c]], pts[[i, j, kk]])
+                world = local @ R.T + t
+                idx = assign_to_predictions(world, np.nan_to_num(pts, nan=1e9), tol_m)
+                use = idx >= 0
+                if use.sum() < 3:
+                    continue
+                R, t = _kabsch(local[use], pts[idx[use]])
+                res = np.linalg.norm(local[use] @ R.T + t - pts[idx[use]], axis=1)
+                if res.max() > tol_m:
+                    continue
+                found.append((R, t, idx, float(np.sqrt(np.mean(res**2)))))
     found.sort(key=lambda f: (-int((f[2] >= 0).sum()), f[3]))
     unique: list = []
     for f in found:
@@ -235,8 +232,9 @@ class MarkerModel(Protocol):
 
     labels: list[str]
 
-    def initialise(self, points: np.ndarray) -> tuple[object, np.ndarray, float]:
-        """Global search on one frame's trusted points: ``(state, point index per label, score)``."""
+    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[object, np.ndarray, float]:
+        """Global search on one frame: ``(state, point index per label, score)``. Untrusted points
+        (ambiguous two-view points) may only be taken within the tight gate of the final fit."""
 
     def track(self, points: np.ndarray, trusted: np.ndarray, state: object, previous: Sequence[np.ndarray],
               gates: tuple[float, float]) -> tuple[object, np.ndarray, float]:
@@ -462,12 +460,13 @@ class SkeletonMarkerModel:
             claim(R_w[b], t_w[b], b)
         return q
 
-    def initialise(self, points: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
+    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
         M = len(self.labels)
         none = np.full(M, -1, dtype=np.intp)
-        if len(points) < 4:
+        good = points[trusted]
+        if len(good) < 4:
             return None, none, 0.0
-        tree = cKDTree(points)
+        tree = cKDTree(good)
         best: tuple[np.ndarray | None, np.ndarray, float] = (None, none, 0.0)
         roots = self._root_candidates(points)
         if len(roots) > self.max_roots:
@@ -479,8 +478,8 @@ class SkeletonMarkerModel:
             cost = [self._capped(self.markers(self._state(q))[trunk], tree) for q in roots]
             roots = [roots[i] for i in np.argsort(cost)[: self.max_roots]]
         for q_root in roots:
-            q = self._grid_pose(q_root, points, tree)
-            q, idx = self._refine(q, points, (0.08, 0.04, 0.02, 0.015), 60)
+            q = self._grid_pose(q_root, good, tree)
+            q, idx = self._refine(q, points, (0.08, 0.04, 0.02, 0.015), 60, trusted=trusted)
             score = self._score(q, points, idx)
             if score > best[2]:
                 best = (self._state(q), idx, score)
@@ -698,7 +697,7 @@ class ClusterMarkerModel:
             idx = np.where(more >= 0, more, idx)
         return idx
 
-    def initialise(self, points: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
+    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
         M = len(self.labels)
         idx = np.full(M, -1, dtype=np.intp)
         # Seeds: groups (a marker and its neighbours), most rigid first, each matched among the
@@ -777,11 +776,9 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
     trusted = [(fr.n_views >= 3) | ~fr.ambiguous for fr in frames]
 
     def init(f: int):
-        sel = np.flatnonzero(trusted[f])
-        if sel.size < 3:
+        if len(frames[f]) < 3:
             return None, np.full(M, -1, dtype=np.intp), 0.0
-        state, idx, score = model.initialise(frames[f].xyz[sel])
-        return state, np.where(idx >= 0, sel[np.maximum(idx, 0)], -1), score
+        return model.initialise(frames[f].xyz, trusted[f])
 
     counts = np.array([int(t.sum()) for t in trusted])
     tries = np.unique(np.linspace(0, F - 1, min(p.init_frames, F)).round().astype(int))
