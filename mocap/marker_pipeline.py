@@ -167,7 +167,10 @@ def capture_from_detections(
                                dt=dt, rng=rng, **params.tracker_params)
         timings["tracking"] = (time.perf_counter() - t0) * 1e3
     t0 = time.perf_counter()
-    traj = reconstruct(tracks, calibration, params.reconstruction, times=np.asarray(times, float), detections=detections)
+    # Labels from the model are already consistent across cameras: no cross-camera re-labelling
+    # (it exists to mend 2D trackers' label mistakes).
+    first = dataclasses.replace(params.reconstruction, relabel_gate_px=0) if use_model else params.reconstruction
+    traj = reconstruct(tracks, calibration, first, times=np.asarray(times, float), detections=None if use_model else detections)
     reassoc_stats: dict[str, int] = {}
 
     def add_stats(stats: dict[str, int]) -> None:

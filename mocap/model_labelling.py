@@ -503,9 +503,61 @@ class SkeletonMarkerModel:
         pred = _constant_velocity(self.markers(np.concatenate([q_pred, v_prev])), previous)
         q, idx = self._refine(q_pred, points, (gates[0], gates[1]), self.solver.params.max_iterations,
                               prior=q_pred[7:], pred=pred, trusted=trusted)
+        q, idx = self._recover_clusters(q, idx, points, gates)
         q, idx = self._recover_limbs(q, idx, points, trusted, gates)
         q, idx = self._shell_rescue(q, idx, points, trusted, gates)
         return self._state(q, q_prev), idx, self._score(q, points, idx)
+
+    def _refit_with(self, q: np.ndarray, idx: np.ndarray, points: np.ndarray, gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """IK on the given labels, then every label assigned again within the tight gate."""
+        ok = idx >= 0
+        obs = np.full((len(self.labels), 3), np.nan)
+        obs[ok] = points[idx[ok]]
+        q, _ = self._fit(q, obs, ok, self.solver.params.max_iterations, prior=q[7:])
+        return q, assign_to_predictions(self.markers(self._state(q)), points, gates[1])
+
+    def _recover_clusters(self, q: np.ndarray, idx: np.ndarray, points: np.ndarray,
+                          gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """A rigid body (three or more markers) whose labels are incomplete or inconsistent with
+        its fixed marker distances is matched again as a rigid cluster among the points near it;
+        the match is kept when the frame then explains more points. This finds a head that turned
+        while only one of its markers was seen (its model pose drifted) when the others return."""
+        cs = self._tables
+        centres = None
+        best_n = int((idx >= 0).sum())
+        for b, own in self._clusters:
+            lab = idx[own]
+            have = lab >= 0
+            if have.all():
+                P = points[lab]
+                L = cs.local_in_body[b][own]
+                dm = np.linalg.norm(L[:, None] - L[None], axis=2)
+                dp = np.linalg.norm(P[:, None] - P[None], axis=2)
+                if np.abs(dp - dm).max() <= self.cluster_tol_m:
+                    continue
+            if centres is None:
+                centres = self.solver.joint_centres(q)
+            near = np.linalg.norm(points - centres[b], axis=1) < 0.4
+            others = np.ones(len(points), bool)
+            mine = np.zeros(len(points), bool)
+            mine[lab[have]] = True
+            others[idx[idx >= 0]] = False
+            allowed = near & (others | mine)
+            if allowed.sum() < 3:
+                continue
+            matches = match_rigid_cluster(cs.local_in_body[b][own], points, self.cluster_tol_m, max_matches=3, allowed=allowed)
+            for _, _, mi, _ in matches:
+                if (mi >= 0).sum() < max(3, have.sum()):
+                    continue
+                trial = idx.copy()
+                trial[own] = mi
+                q_try, idx_try = self._refit_with(q, trial, points, gates)
+                n_try = int((idx_try >= 0).sum())
+                if n_try > best_n:
+                    q, idx, best_n = q_try, idx_try, n_try
+                    centres = self.solver.joint_centres(q)
+                    break
+        return q, idx
 
     def _shell_rescue(self, q: np.ndarray, idx: np.ndarray, points: np.ndarray, trusted: np.ndarray,
                       gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
