@@ -129,6 +129,18 @@ def bench_trackers(frames: int = typer.Option(200, help="frames per measurement"
     print(format_benchmark_table(run_tracker_benchmark(n_frames=frames, seed=seed)))
 
 
+@bench_app.command("pipeline")
+@user_errors
+def bench_pipeline(frames: int = typer.Option(30, help="frames of the scenario rendered and timed"),
+                   scenario: Path = typer.Option(Path("scenarios/quickstart.toml"), help="scenario whose frames are timed"),
+                   passes: int = typer.Option(3, help="passes per measurement (the fastest is kept)")) -> None:
+    """Marker pipeline cost per stage per multi-camera frame on one core, with a threshold +
+    cv2.connectedComponentsWithStats pass on the same images as reference."""
+    from simbench.pipeline_benchmark import run_pipeline_benchmark
+
+    print(run_pipeline_benchmark(n_frames=frames, scenario_path=str(scenario), passes=passes).table())
+
+
 from simbench.shirt_db import bench_shirt_command, shirt_app  # noqa: E402  (colour-shirt pipeline, issue 6)
 app.add_typer(shirt_app, name="shirt")
 bench_app.command("shirt")(bench_shirt_command)
