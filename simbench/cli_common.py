@@ -58,36 +58,23 @@ def user_errors(fn: Callable) -> Callable:
     return wrapper
 
 
-class Interrupted(BaseException):
-    """SIGINT or SIGTERM arrived. A ``BaseException`` like ``KeyboardInterrupt``: it unwinds
-    through every ``with`` and ``finally``, so partial outputs are removed on the way out,
-    and no ``except Exception`` swallows it."""
-
-    def __init__(self, signum: int) -> None:
-        self.signum = signum
-        super().__init__(signal.Signals(signum).name)
-
-
-def _on_signal(signum: int, frame) -> None:
-    # Once: a second SIGTERM during the clean-up is ignored; a second Ctrl-C is the
-    # usual KeyboardInterrupt (whatever is left half-written is removed by the next run
-    # into the same folder, see simbench.output_dir).
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    raise Interrupted(signum)
-
-
 def run_app(app: typer.Typer) -> None:
-    """Run the command line with SIGINT and SIGTERM turned into :class:`Interrupted`:
-    one line on stderr, unfinished outputs removed, exit 128 + the signal's number."""
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    """Run the command line with SIGINT and SIGTERM turned into
+    :class:`simbench.interrupts.Interrupted`: one line on stderr, unfinished outputs
+    removed, exit 128 + the signal's number. An exception that a signal turned into
+    something else on its way out (see :mod:`simbench.interrupts`) counts as that signal."""
+    from simbench import interrupts
+
+    interrupts.install()
     try:
         app()
-    except Interrupted as exc:
-        console.print(f"interrupted by {exc}: stopped; unfinished outputs removed, earlier outputs left as they were",
-                      markup=False, highlight=False, soft_wrap=True)
-        sys.exit(128 + exc.signum)
+    except BaseException as exc:
+        signum = exc.signum if isinstance(exc, interrupts.Interrupted) else interrupts.pending()
+        if signum is None or isinstance(exc, SystemExit):
+            raise
+        console.print(f"interrupted by {signal.Signals(signum).name}: stopped; unfinished outputs removed, "
+                      f"earlier outputs left as they were", markup=False, highlight=False, soft_wrap=True)
+        sys.exit(128 + signum)
 
 
 def progress_bar(description: str, total: int):

@@ -33,6 +33,7 @@ from mocap.errors import MocapInputError
 from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
 from simbench.bench import Bench
+from simbench import interrupts
 from simbench.errors import SimbenchInputError
 from simbench.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
 from simbench.scenario import Scenario
@@ -90,6 +91,7 @@ class _Stages:
         try:
             yield
         except Exception as exc:  # a late failure must not lose the run (module doc)
+            interrupts.raise_if_pending(exc)  # unless it is a signal in disguise: stop
             self.record(stage, exc)
 
     def record(self, stage: str, cause: BaseException | str) -> None:
@@ -246,6 +248,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                 try:
                     capture = capture_with(pipeline_params(scenario))
                 except Exception as exc:
+                    interrupts.raise_if_pending(exc)
                     if not scenario.markers_pipeline.solve_skeleton:
                         raise
                     # Keep the markers when only the skeleton solve fails: run again without
@@ -279,6 +282,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                 with stages.run("exports"):
                     export_capture(capture, tmp / "exports", calibration, subject_model(bench))
                 with stages.run("exports (label template, subject file)"):
+                    (tmp / "exports").mkdir(exist_ok=True)
                     save_template(label_template(bench), tmp / "exports" / "label_template.csv")
                     # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
                     if subject_model(bench) is not None:

@@ -66,6 +66,7 @@ import duckdb
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
 from simbench.scenario import Scenario, load_scenario, validation_error_to_scenario_error
@@ -375,6 +376,7 @@ def execute_run(task: RunTask) -> RunRecord:
                            timings=dict(result.timings_s), versions=versions, worker=worker, out_dir=task.out_dir or "",
                            metrics=metrics, per_frame=per_frame_table(result), warnings=_distinct(caught))
         except Exception as exc:  # a failing run is recorded, the sweep goes on
+            interrupts.raise_if_pending(exc)
             tb = traceback.format_exc(limit=-6)
             return _record(task.spec, STATUS_FAILED, error=f"{type(exc).__name__}: {exc}\n{tb}", started_at=started,
                            ended_at=time.time(), versions=versions, worker=worker, warnings=_distinct(caught))
@@ -402,32 +404,27 @@ def default_workers() -> int:
 WORKER_EXIT_S = 10
 
 
-class WorkerStopped(BaseException):
-    """SIGTERM in a pool worker: unwinds the run in progress (its partial output folder is
-    removed on the way), then the worker exits (:func:`_pool_execute`)."""
+def _pool_execute(task: RunTask) -> RunRecord:
+    """:func:`execute_run` in a local pool worker. A worker stopped by SIGTERM exits once
+    the run has unwound (its partial output folder removed), rather than take the next
+    run from the pool's queue; SIGALRM ends it after ``WORKER_EXIT_S`` whatever happens."""
+    try:
+        record = execute_run(task)
+    except interrupts.Interrupted:
+        os._exit(128 + signal.SIGTERM)
+    if interrupts.pending() is not None:  # the signal was caught as a failure on its way out
+        os._exit(128 + signal.SIGTERM)
+    return record
 
 
 def _worker_sigterm(signum, frame) -> None:
-    # Later SIGTERMs are ignored: when a multi-threaded parent dies the kernel may send the
-    # death signal more than once (the worker is handed to another of its threads first),
-    # and a second one must not cut the clean-up short. SIGALRM is the backstop.
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     signal.alarm(WORKER_EXIT_S)
     f = frame
     while f is not None and f.f_code is not _pool_execute.__code__:
         f = f.f_back
     if f is None:  # idle between runs: nothing to clean up
         os._exit(128 + signal.SIGTERM)
-    raise WorkerStopped
-
-
-def _pool_execute(task: RunTask) -> RunRecord:
-    """:func:`execute_run` in a local pool worker. A stopped worker exits once the run has
-    unwound, rather than take the next run from the pool's queue."""
-    try:
-        return execute_run(task)
-    except WorkerStopped:
-        os._exit(128 + signal.SIGTERM)
+    interrupts.stop(signum)  # records it, ignores later SIGTERMs, raises Interrupted
 
 
 def _worker_init(parent_pid: int) -> None:

@@ -200,7 +200,9 @@ def test_a_failing_export_keeps_metrics_and_report_and_exits_3(tmp_path, monkeyp
     assert f"exports failed: {out}/exports/skeleton.bvh: no frame of the fit was solved" in errors[0]
     assert ".partial-" not in r.output
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["markers.reconstructed_fraction"] > 0.5  # the run's metrics are all there
+    # the run's metrics are all there (their values are the pipeline's business, not this test's)
+    assert 0.0 <= metrics["markers.reconstructed_fraction"] <= 1.0 and metrics["run.frames"] == 6
+    assert {"markers.rmse_mm", "markers.label_swaps", "run.cameras"} <= set(metrics)
     assert metrics["failed_stages"] == [{"stage": "exports", "cause": f"{out}/exports/skeleton.bvh: no frame of the fit "
                                          "was solved, nothing to write; check the marker labels and min_markers"}]
     report = (out / "report.md").read_text()

@@ -193,3 +193,42 @@ def test_sweep_workers_die_with_the_parent(tmp_path, sig):
     # The worker removed its partial run folder on the way out (SIGTERM from the parent,
     # or from the kernel when the parent was SIGKILLed).
     assert _partials(db.parent / "runs") == []
+
+
+# A signal that lands inside library code can come out as an ordinary exception (ctypes
+# turns the handler's exception into ctypes.ArgumentError when it arrives while PyOpenGL
+# converts call arguments). This script sends SIGTERM to itself inside the patched stage
+# and re-raises it as a RuntimeError, as such a library would.
+WRAPPED = """
+import os, signal, sys, time
+from simbench import rendering, run
+from simbench.cli import main
+
+def wrap(fn):
+    def patched(*a, **k):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.5)
+        except BaseException as exc:
+            raise RuntimeError("a library caught it: " + repr(exc)) from None
+        return fn(*a, **k)
+    return patched
+
+where = sys.argv.pop(1)
+if where == "render":
+    run.render_frames = wrap(run.render_frames)
+else:
+    run.export_capture = wrap(run.export_capture)
+main()
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("where", ["render", "exports"])
+def test_a_signal_wrapped_into_an_ordinary_exception_still_stops_the_run(tmp_path, where):
+    out = tmp_path / "result"
+    r = subprocess.run([sys.executable, "-c", WRAPPED, where, "run", QUICKSTART, "--out", str(out), *TINY],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 128 + signal.SIGTERM, r.stderr
+    assert "Traceback" not in r.stderr and r.stderr.strip().splitlines()[-1].startswith("interrupted by SIGTERM")
+    assert not out.exists() and _partials(tmp_path) == []  # not committed as a run with a failed stage
