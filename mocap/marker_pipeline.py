@@ -133,7 +133,9 @@ def capture_from_detections(
     F = len(times)
     timings = {"detection": detection_ms}
     t0 = time.perf_counter()
-    use_model = params.labelling == "model" and (subject is not None or marker_model is not None)
+    # Two cameras cannot confirm a pairing (every two-view point fits its epipolar line), so the
+    # model path needs three or more; two-camera rigs use seed 000's scheme.
+    use_model = params.labelling == "model" and (subject is not None or marker_model is not None) and C >= 3
     if params.labelling not in ("model", "tracker"):
         raise MocapInputError(f"labelling={params.labelling!r}: use 'model' or 'tracker'")
     if use_model:

@@ -35,11 +35,12 @@ def test_tracker_labelling_is_still_available_and_needs_the_t_pose() -> None:
 
 @pytest.mark.slow
 def test_cmu_walk_labels_every_marker_without_swaps() -> None:
-    """A guard, not issue 12's bar (0.98 and 1.5 mm, not met yet: see the README's real-motion
-    table); the T-pose labelling reconstructed 0.16 of this walk."""
-    sc = load_scenario("scenarios/bvh_walk.toml", overrides={"duration_s": 1.5})
+    """1.5 s of the walk itself (3.5-5.0 s of CMU 131_01): a guard, not issue 12's bar over the
+    whole window (see the README's real-motion table); the T-pose labelling reconstructed 0.16."""
+    sc = load_scenario("scenarios/bvh_walk.toml", overrides={"duration_s": 1.5, "motion.start_s": 3.5})
     m = run_scenario(sc, None, write_outputs=False).metrics
     print({k: round(v, 4) for k, v in m.items() if k.startswith(("markers.", "skeleton."))})
-    assert m["markers.reconstructed_fraction"] >= 0.93, m
+    assert m["markers.reconstructed_fraction"] >= 0.99, m
     assert m["markers.label_swaps"] == 0, m
-    assert m["markers.rmse_mm"] <= 3.0, m
+    assert m["markers.rmse_mm"] <= 2.5, m
+    assert m["skeleton.joint_angle_rmse_deg"] <= 2.0, m
