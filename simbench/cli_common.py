@@ -68,9 +68,10 @@ def run_app(app: typer.Typer) -> None:
     interrupts.install()
     try:
         app()
-    except BaseException as exc:
+        interrupts.raise_if_pending()
+    except BaseException as exc:  # click ends even a successful command with SystemExit
         signum = exc.signum if isinstance(exc, interrupts.Interrupted) else interrupts.pending()
-        if signum is None or isinstance(exc, SystemExit):
+        if signum is None:
             raise
         console.print(f"interrupted by {signal.Signals(signum).name}: stopped; unfinished outputs removed, "
                       f"earlier outputs left as they were", markup=False, highlight=False, soft_wrap=True)

@@ -4,15 +4,19 @@
 so every ``with`` and ``finally`` on the way out runs (partial output folders are
 removed). A handler's exception can be caught and re-wrapped by code it lands in
 (ctypes turns it into ``ctypes.ArgumentError`` when it arrives while PyOpenGL converts
-call arguments; an ``except Exception`` may record it as a failure), so the signal is
-also recorded: :func:`pending` tells code that catches broad exceptions (the run's
-stages, the sweep worker, the CLI) to stop rather than go on. The record is
+call arguments, and drops it altogether, printing it, when it arrives in a Python
+callback called from C, as numba's JIT compiler makes; an ``except Exception`` may record
+it as a failure), so the signal is also recorded: :func:`pending` and
+:func:`raise_if_pending` let code that catches broad exceptions (the run's stages, the
+sweep worker, the CLI) and code at safe points (every rendered frame, every stage,
+before an output is moved into place) stop rather than go on. The record is
 process-wide state on purpose: so are signals.
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 from typing import NoReturn
 
 _received: list[int] = []  # signal numbers received by this process, in order
@@ -43,10 +47,29 @@ def _on_signal(signum: int, frame) -> None:
     stop(signum)
 
 
+def _unraisable(hook):
+    def quiet(unraisable) -> None:
+        # ctypes prints an exception raised in a callback (numba's JIT compiler calls
+        # Python back from C) and drops it: the signal is recorded, the next check stops
+        # the run, and no traceback is printed.
+        if isinstance(unraisable.exc_value, Interrupted):
+            return
+        hook(unraisable)
+
+    return quiet
+
+
 def install(signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> None:
     """Turn ``signals`` into :class:`Interrupted` (main thread only)."""
     for s in signals:
         signal.signal(s, _on_signal)
+    quiet_unraisable()
+
+
+def quiet_unraisable() -> None:
+    """Do not print an :class:`Interrupted` that a C callback could not raise (see :func:`pending`)."""
+    if getattr(sys.unraisablehook, "__name__", "") != "quiet":
+        sys.unraisablehook = _unraisable(sys.unraisablehook)
 
 
 def pending() -> int | None:

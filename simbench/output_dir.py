@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from simbench import interrupts
 from simbench.errors import SimbenchInputError
 
 #: Name of the marker file in every folder the bench writes.
@@ -273,7 +274,13 @@ class AtomicOutputDir:
             exc.args = (self.public(exc.args[0]),) + tuple(exc.args[1:])
 
     def commit(self) -> None:
-        """Move the finished folder to ``out`` (replacing a bench output or an empty folder)."""
+        """Move the finished folder to ``out`` (replacing a bench output or an empty folder);
+        not after SIGINT/SIGTERM (:mod:`simbench.interrupts`): then discard it and raise."""
+        try:
+            interrupts.raise_if_pending()
+        except interrupts.Interrupted:
+            self.discard()
+            raise
         try:
             state = replaceable_state(self.out)  # again: the path may have changed during the run
         except OutputPathError:

@@ -16,6 +16,7 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
+from simbench import interrupts
 from simbench.bench import Bench
 from simbench.ground_truth import GroundTruth
 from simbench.output_dir import AtomicOutputDir  # noqa: F401  (re-exported: the bench's output folders)
@@ -106,6 +107,7 @@ def write_render_outputs(bench: Bench, seq_writer_dir: Path, png: bool) -> tuple
             (seq_writer_dir / "frames" / c.name).mkdir(parents=True, exist_ok=True)
 
     def on_frame(out: FrameOutput) -> None:
+        interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the render here
         for ci, c in enumerate(bench.cameras):
             writers[c.name].write(out.images[ci])
             if png:

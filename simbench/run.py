@@ -88,11 +88,13 @@ class _Stages:
 
     @contextmanager
     def run(self, stage: str) -> Iterator[None]:
+        interrupts.raise_if_pending()
         try:
             yield
         except Exception as exc:  # a late failure must not lose the run (module doc)
             interrupts.raise_if_pending(exc)  # unless it is a signal in disguise: stop
             self.record(stage, exc)
+        interrupts.raise_if_pending()
 
     def record(self, stage: str, cause: BaseException | str) -> None:
         detail = "" if isinstance(cause, str) else "".join(traceback.format_exception(cause, limit=-8))
@@ -196,6 +198,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
         writer = write_render_outputs(bench, tmp, png=False) if tmp is not None else None
 
         def on_frame(fo):
+            interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the run here
             if writer is not None:
                 writer[0](fo)
             if stream is not None:

@@ -439,6 +439,7 @@ def _worker_init(parent_pid: int) -> None:
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_sigterm)
+    interrupts.quiet_unraisable()
     armed = False
     if sys.platform.startswith("linux"):
         try:
@@ -500,6 +501,7 @@ def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bo
                 if not inflight:
                     break
                 done, _ = cf.wait(inflight, return_when=cf.FIRST_COMPLETED)
+                interrupts.raise_if_pending()
                 for fut in done:
                     t = inflight.pop(fut)
                     try:
