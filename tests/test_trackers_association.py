@@ -26,7 +26,9 @@ from scipy.spatial.distance import cdist
 from mocap.tracking import track_camera
 
 DT = 1.0 / 30.0
-BUILT_IN = ("alpha_beta", "kalman", "condensation", "imm")
+BUILT_IN = ("alpha_beta", "kalman_openmocap", "condensation", "alpha_beta_adaptive", "kalman", "condensation_drift", "imm")
+PAPER = ("alpha_beta", "kalman_openmocap", "condensation")  # seed 000's, as OpenMoCap had them
+BENCH = ("alpha_beta_adaptive", "kalman", "condensation_drift", "imm")
 
 
 def test_hungarian_beats_greedy_nearest():

@@ -1,4 +1,8 @@
-"""Alpha-beta tracker (seed 000, section III-A), vectorised over markers.
+"""The bench's alpha-beta tracker, ``alpha_beta_adaptive``: seed 000's filter (section
+III-A) with the search area the paper proposes as future work ("the simplicity of the
+Alpha-Beta filter with a variable search area, based on speed"), vectorised over markers.
+Seed 000's own tracker, with OpenMoCap's fixed search circle, is ``alpha_beta``
+(:mod:`mocap.trackers.openmocap`).
 
 Each label has a position and a velocity; the prediction moves it at constant velocity
 for one frame, ``x_p = x_s + dt v_s`` and ``v_p = v_s``. With a measurement ``x_m``
@@ -31,9 +35,10 @@ from mocap.trackers.base import Tracker2D
 from mocap.trackers.registry import register_tracker
 
 
-@register_tracker("alpha_beta")
-class AlphaBetaTracker(Tracker2D):
-    """Alpha-beta filter for M markers.
+@register_tracker("alpha_beta_adaptive")
+class AdaptiveAlphaBetaTracker(Tracker2D):
+    """Alpha-beta filter for M markers with a search area that adapts to its residuals
+    and the speed (registered as ``alpha_beta_adaptive``).
 
     Parameters
     ----------
@@ -56,9 +61,12 @@ class AlphaBetaTracker(Tracker2D):
         inside the search area).
     residual_smoothing : float, default 0.2
         Weight of the newest squared residual in the running RMS.
-    initial_residual_px : float, default 5.0
+    initial_residual_px : float, default 12.0
         Starting value of the running RMS residual: a new label's velocity is unknown,
-        so its first search areas are wide and shrink as residuals come in.
+        so its first search areas are wide and shrink as residuals come in. 12 px makes
+        the first search circle ``4 + 3 * 12 = 40`` px, the fixed circle of seed 000's
+        ``alpha_beta`` (5 % of a 640x480 diagonal): the two differ only in how the area
+        changes afterwards.
     **base_params
         ``max_coast_frames``, ``gate_probability``, ``min_gate_px``, ``max_gate_px``
         (see :class:`~mocap.trackers.base.Tracker2D`).
@@ -78,7 +86,7 @@ class AlphaBetaTracker(Tracker2D):
         residual_gain: float = 3.0,
         speed_gain: float = 1.0,
         residual_smoothing: float = 0.2,
-        initial_residual_px: float = 5.0,
+        initial_residual_px: float = 12.0,
         **base_params,
     ) -> None:
         super().__init__(initial_xy, dt, rng, **base_params)

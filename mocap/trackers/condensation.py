@@ -1,7 +1,9 @@
-"""CONDENSATION particle tracker (seed 000, section III-C; Isard & Blake 1998), batched.
+"""The bench's CONDENSATION particle tracker, ``condensation_drift`` (seed 000, section
+III-C; Isard & Blake 1998), batched. Seed 000's own, as OpenMoCap had it (identity
+dynamics, uniform diffusion), is ``condensation`` (:mod:`mocap.trackers.openmocap`).
 
-Each label carries ``N`` position particles (seed 000: 100; the state is the position
-only). One frame is CONDENSATION's three phases, for all markers at once:
+Each label carries ``N`` position particles (seed 000: 100) and, unlike seed 000's
+position-only state, a drift velocity. One frame is CONDENSATION's three phases, for all markers at once:
 
 1. **selection** -- systematic resampling of every label's particles by their weights
    (:func:`systematic_resample`, filterpy's ``systematic_resample`` batched over rows);
@@ -76,9 +78,10 @@ def _systematic_flat(weights: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.repeat(np.arange(M * N), counts)
 
 
-@register_tracker("condensation")
-class CondensationTracker(Tracker2D):
-    """CONDENSATION particle filter for M markers.
+@register_tracker("condensation_drift")
+class DriftCondensationTracker(Tracker2D):
+    """CONDENSATION particle filter for M markers with a drift velocity and a diffusion
+    that grows with the speed (registered as ``condensation_drift``).
 
     Parameters
     ----------
