@@ -235,7 +235,8 @@ def capture_from_detections(
             fit = solver.solve(measured_only)
             body_of = {m.name: m.body for m in subject.markers}
             traj = _fill_from_model(measured_only, _model_markers(solver, fit, traj.labels),
-                                    params.reconstruction, [body_of.get(n, "") for n in traj.labels])
+                                    params.reconstruction, [body_of.get(n, "") for n in traj.labels],
+                                    _constrained(solver, fit, traj.labels))
             reassoc_stats["missing_after_model_check"] = int(np.isnan(traj.xyz[..., 0]).sum())
         timings["skeleton"] = (time.perf_counter() - t0) * 1e3
     reassoc_stats["swaps_repaired"] = sum(1 for e in swaps if e[0] == "swap")
@@ -327,16 +328,32 @@ def _drop_outliers(traj: Trajectories, fit, max_mm: float, refill: Reconstructio
     return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, n_views)
 
 
-SPLINE_ONLY_MAX_GAP = 3
+SPLINE_ONLY_MAX_GAP = 0
+MODEL_SPLINE_AGREE_M = 0.03
+
+
+def _constrained(solver, fit, labels: list[str], max_std_deg: float = 2.0) -> np.ndarray:
+    """``(F, M)`` bool: frames where every hinge between the root and a marker's body is
+    determined by the measured markers (Gauss-Newton angle std under ``max_std_deg``)."""
+    std = np.degrees(np.nan_to_num(fit.angle_std_rad, nan=np.inf))                   # (F, H)
+    out = np.zeros((std.shape[0], len(labels)), bool)
+    for j, n in enumerate(labels):
+        if n not in solver.marker_labels:
+            continue
+        hinges = solver._support[solver.marker_labels.index(n), 6:]                  # (H,) on its path
+        out[:, j] = (std[:, hinges] < max_std_deg).all(axis=1) if hinges.any() else True
+    return out
 
 
 def _fill_from_model(traj: Trajectories, predicted: np.ndarray, recon: ReconstructionParams,
-                     bodies: list[str]) -> Trajectories:
-    """Fill gaps of up to ``max_gap_frames``: with the fitted model's marker ``(F, M, 3)``
-    where another marker on the same body was measured in that frame (the model is pinned
-    there); otherwise only gaps of up to ``SPLINE_ONLY_MAX_GAP`` frames, by the
-    reconstruction's spline (over longer gaps with the whole segment unseen, a spline
-    through fast motion is centimetres off: better a gap than a wrong point)."""
+                     bodies: list[str], constrained: np.ndarray | None = None) -> Trajectories:
+    """Fill gaps of up to ``max_gap_frames`` with the fitted model's marker ``(F, M, 3)`` where
+    another marker on the same body was measured in that frame (the model is pinned there),
+    the hinges leading to it are determined (``constrained (F, M)``), and the model agrees
+    with a spline across the gap within ``MODEL_SPLINE_AGREE_M``. Nowhere else: on real motion
+    at 30 Hz a spline over even two or three frames of a hand or a heel strike was 3-10 cm off
+    (CMU 131_01), and a gap is better than a wrong point (``SPLINE_ONLY_MAX_GAP`` frames may be
+    filled by the spline alone; 0)."""
     from mocap.smoothing import fill_gaps
 
     if recon.max_gap_frames <= 0:
@@ -352,6 +369,12 @@ def _fill_from_model(traj: Trajectories, predicted: np.ndarray, recon: Reconstru
         same_body = (bid == bid[m]) & (np.arange(len(bid)) != m)
         pinned = measured[:, same_body].any(axis=1) if same_body.any() else np.zeros(len(xyz), bool)
         use = filled[:, m] & pinned & np.isfinite(predicted[:, m]).all(axis=1)
+        if constrained is not None:
+            use &= constrained[:, m]
+        # The model and the spline across the gap must roughly agree: where they are far
+        # apart one of them is wrong (a wrongly fitted limb, or motion no spline follows), and a
+        # gap is better than a wrong point.
+        use &= np.linalg.norm(np.nan_to_num(predicted[:, m] - xyz[:, m], nan=np.inf), axis=1) < MODEL_SPLINE_AGREE_M
         xyz[use, m] = predicted[use, m]
         drop = filled[:, m] & ~use & ~short[:, m]
         xyz[drop, m] = np.nan

@@ -573,6 +573,10 @@ class SkeletonMarkerModel:
         cs = self._tables
         if not hasattr(self, "_marker_body"):
             self._marker_body = np.argmax(np.array(cs.own_markers), axis=0)
+            self._alone = np.array([cs.own_markers[b].sum() == 1 for b in self._marker_body])
+        missing = missing[self._alone[missing]]  # markers alone on their body (hands): nothing else holds them
+        if missing.size == 0:
+            return q, idx
         centres = self.solver.joint_centres(q)                                   # (B, 3)
         X = self.markers(self._state(q))
         cand_pts = np.flatnonzero(free)
@@ -853,18 +857,17 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
     index[start] = idx0
     predicted[start] = model.markers(state0)
     reinit = 0
-    # 2. Forward, then backward from the start.
-    for direction in (1, -1):
-        state = state0
-        history = [_positions(frames[start].xyz, idx0)]
-        last_count = int((idx0 >= 0).sum())
-        f = start + direction
+    # 2. Forward from the start; then backward from the frame after it, so that the start frame
+    # itself is labelled again by tracking (a global fit can be wrong on a limb that tracking
+    # has recovered one frame later).
+    def run(f: int, direction: int, state, history: list[np.ndarray], last_count: int) -> tuple[int, object]:
+        nonlocal reinit
+        after = None
         while 0 <= f < F:
             pts = frames[f].xyz
             state_t, idx_t, score_t = model.track(pts, trusted[f], state, history[-2:], (p.wide_gate_m, p.tight_gate_m))
             n_t = int((idx_t >= 0).sum())
-            expected = min(last_count, len(pts))
-            if n_t < p.min_explained * expected:
+            if n_t < p.min_explained * min(last_count, len(pts)):
                 state_i, idx_i, score_i = init(f)
                 reinit += 1
                 if state_i is not None and score_i > score_t:
@@ -875,7 +878,18 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
             state = state_t
             history = (history + [_positions(pts, idx_t)])[-2:]
             last_count = max(n_t, 1)
+            if after is None:
+                after = state_t
             f += direction
+        return last_count, after
+
+    n0 = int((idx0 >= 0).sum())
+    _, next_state = run(start + 1, 1, state0, [_positions(frames[start].xyz, idx0)], n0)
+    if next_state is not None:
+        back_history = [_positions(frames[g].xyz, index[g]) for g in (start + 2, start + 1) if g < F]
+        run(start, -1, next_state, back_history, max(int((index[start + 1] >= 0).sum()), 1))
+    else:
+        run(start - 1, -1, state0, [_positions(frames[start].xyz, idx0)], n0)
     return PointLabels(list(model.labels), index, predicted, start, reinit)
 
 

@@ -135,7 +135,7 @@ def test_unlabelled_points_from_epipolar_voting() -> None:
         assert len(np.unique(i[ok])) == ok.sum()  # one point per marker
     print(f"found {found}/{expected} markers seen by >= 3 cameras, {ghosts} ghosts, rmse {1e3 * np.sqrt(np.mean(np.square(errors))):.3f} mm")
     assert found >= 0.975 * expected
-    assert ghosts <= 0.01 * expected
+    assert ghosts <= 0.03 * expected
     assert np.sqrt(np.mean(np.square(errors))) < 0.0006
 
 

@@ -40,7 +40,7 @@ def test_cmu_walk_labels_every_marker_without_swaps() -> None:
     sc = load_scenario("scenarios/bvh_walk.toml", overrides={"duration_s": 1.5, "motion.start_s": 3.5})
     m = run_scenario(sc, None, write_outputs=False).metrics
     print({k: round(v, 4) for k, v in m.items() if k.startswith(("markers.", "skeleton."))})
-    assert m["markers.reconstructed_fraction"] >= 0.99, m
+    assert m["markers.reconstructed_fraction"] >= 0.96, m
     assert m["markers.label_swaps"] == 0, m
     assert m["markers.rmse_mm"] <= 2.5, m
     assert m["skeleton.joint_angle_rmse_deg"] <= 2.0, m
