@@ -47,7 +47,7 @@ def trackers(
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="rendering processes (default: up to 2 cores)"),
 ) -> None:
     """Seed 000's tracker comparison (losses, prediction errors, cost: Tables I-VII) on rendered videos."""
-    from simbench.study_trackers import CATEGORIES, StudyConfig, format_tables, run_study, write_study
+    from simbench.study_trackers import CATEGORIES, StudyConfig, format_findings, format_tables, run_study, write_study
 
     cats = _split_names(categories) or CATEGORIES
     try:
@@ -65,4 +65,29 @@ def trackers(
     print(format_tables(result))
     tot = result.total_losses()
     print("Total losses: " + ", ".join(f"{n} {tot[n]}" for n in result.trackers))
+    print()
+    print("### Seed 000's findings, checked (99 %: McNemar on the same videos, Welch on the errors)")
+    print()
+    print(format_findings(result))
     console.print(f"report: {report} ({time.perf_counter() - t0:.0f} s)")
+
+
+@study_app.command("fit-difficulty")
+@user_errors
+def fit_difficulty(
+    videos: int = typer.Option(40, "--videos", min=5, help="synthetic videos per category and evaluation"),
+    seed: int = typer.Option(1, "--seed", min=0, help="seed of the fit videos (the study's own default is 0)"),
+    noise: float = typer.Option(0.08, "--noise", min=0.0, help="detection noise, px per axis (rendered detector: ~0.08)"),
+    categories: list[str] = typer.Option([], "--categories", help="subset of slow, rapid, acceleration"),
+    max_evaluations: int = typer.Option(150, "--max-evaluations", min=5, help="Nelder-Mead evaluations per category"),
+) -> None:
+    """Fit the videos' motion so that seed 000's trackers reproduce its Tables II-IV; print the difficulty."""
+    from simbench.study_trackers_fit import FIT_CATEGORIES, fit_difficulty as fit, format_fit
+
+    cats = _split_names(categories) or FIT_CATEGORIES
+    unknown = sorted(set(cats) - set(FIT_CATEGORIES))
+    if unknown:
+        raise SimbenchInputError(f"--categories: {', '.join(unknown)} not fittable; choose from {', '.join(FIT_CATEGORIES)}")
+    t0 = time.perf_counter()
+    print(format_fit(fit(n_videos=videos, seed=seed, noise_px=noise, categories=cats, max_evaluations=max_evaluations)))
+    console.print(f"({time.perf_counter() - t0:.0f} s)")
