@@ -136,7 +136,7 @@ def test_unlabelled_points_from_epipolar_voting() -> None:
     print(f"found {found}/{expected} markers seen by >= 3 cameras, {ghosts} ghosts, rmse {1e3 * np.sqrt(np.mean(np.square(errors))):.3f} mm")
     assert found >= 0.975 * expected
     assert ghosts <= 0.03 * expected
-    assert np.sqrt(np.mean(np.square(errors))) < 0.0006
+    assert np.sqrt(np.mean(np.square(errors))) < 0.001  # 0.1 px noise, 2.5 px residual gate
 
 
 def test_assignment_gives_one_point_per_label() -> None:
