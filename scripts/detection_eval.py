@@ -38,10 +38,10 @@ from scipy.spatial import cKDTree
 
 from mocap.detection import DetectionParams, detect_markers
 from mocap.types import Detections
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.cli_common import parse_overrides
 from simbench.render.ids import BACKGROUND, BODY, CLUTTER, MARKER_BASE, SET
-from simbench.rendering import render_frames
+from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 
 
@@ -76,7 +76,7 @@ def render_cached(path: Path, overrides: dict[str, object], cache: Path) -> Rend
     f = cache / f"{sc.name}_{key}.npz"
     if not f.is_file():
         cache.mkdir(parents=True, exist_ok=True)
-        bench = Bench.from_scenario(sc)
+        bench = build_stage(sc)
         seq = render_frames(bench, keep_frames=True, keep_ids=True)
         gt = seq.ground_truth
         ids = np.stack([gt.id_maps[n] for n in gt.camera_names], axis=1)

@@ -51,7 +51,7 @@ def run_render_benchmark(n_frames: int = 60, scenario_path: str | None = None, e
     configure_gl_environment()
     import mujoco
 
-    from simbench.bench import Bench
+    from simbench.stage.build import build_stage
     from simbench.render.frames import frame_rng
     from simbench.scenario import RigConfig, Scenario
 
@@ -63,7 +63,7 @@ def run_render_benchmark(n_frames: int = 60, scenario_path: str | None = None, e
 
     def measure(label: str, sc: Scenario, n_cams: int, ids: bool = False, raster_only: bool = False) -> float:
         times = sc.frame_times()
-        bench = Bench.from_scenario(sc)
+        bench = build_stage(sc)
         bench.cameras = bench.cameras[:n_cams]
         fr = bench.frame_renderer()
         poses = bench.pose_at(times[: n_frames + 3])
@@ -104,7 +104,7 @@ def run_render_benchmark(n_frames: int = 60, scenario_path: str | None = None, e
     raster = measure("lit RGB rasterise + read back only (no sensor), 1 camera", base, 1, raster_only=True)
 
     # Reference: mujoco.Renderer on the same MuJoCo scene, MSAA/shadows/reflections off.
-    bench = Bench.from_scenario(base)
+    bench = build_stage(base)
     model = mujoco.MjModel.from_xml_string(bench.scene.mjcf_xml)
     model.vis.quality.offsamples = 0
     data = mujoco.MjData(model)

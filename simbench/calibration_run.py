@@ -2,7 +2,7 @@
 
 ``simbench run`` calls :func:`run_calibration` when a scenario has a
 ``[calibration_scene]``: the board pictures and wand blobs of
-:mod:`simbench.calibration_scene` go through the calibration tool exactly as a user's
+:mod:`simbench.stage.calibration_scene` go through the calibration tool exactly as a user's
 would (:func:`mocap.calibrate.detect_board_views` then
 :func:`mocap.calibrate.calibrate_from_observations`, the two halves of
 :func:`mocap.calibrate.calibrate_cameras`, kept apart here only so that the detected
@@ -52,7 +52,7 @@ from mocap.calib.observations import BoardObservations, WandObservations
 from mocap.calib.world_frame import transform_cameras, transform_points, transform_poses
 from mocap.calibrate import CalibrationResult, calibrate_from_observations, detect_board_views, write_calibration
 from mocap.calibration import Calibration
-from simbench.calibration_scene import CalibrationScene, render_calibration_scene
+from simbench.stage.calibration_scene import CalibrationScene, render_calibration_scene
 from simbench.scenario import Scenario
 
 
@@ -380,7 +380,7 @@ def run_calibration(bench_or_scenario, out_dir: str | Path | None = None,
 
     Parameters
     ----------
-    bench_or_scenario : simbench.bench.Bench or Scenario
+    bench_or_scenario : simbench.stage.stage.Stage or Scenario
         With a ``[calibration_scene]``. A bench lends its cameras and lights.
     out_dir : path, optional
         Writes ``calibration/estimated.{toml,yml,report.json}``, ``calibration/truth.yml``,

@@ -50,7 +50,7 @@ def render(scenario: Path = typer.Argument(..., help="scenario TOML"),
            png: bool = typer.Option(False, "--png", help="also write every frame as PNG")) -> None:
     """Render a scenario: per-camera MP4, ground truth, calibration, contact sheet."""
     from simbench.output_dir import replaceable_state
-    from simbench.rendering import render_scenario
+    from simbench.stage.rendering import render_scenario
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario)

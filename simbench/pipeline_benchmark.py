@@ -74,13 +74,13 @@ def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/q
     _one_core()
     from mocap.detection import DetectionParams, detect_markers
     from mocap.marker_pipeline import capture_from_detections
-    from simbench.bench import Bench
-    from simbench.rendering import render_frames
+    from simbench.stage.build import build_stage
+    from simbench.stage.rendering import render_frames
     from simbench.run import label_template, pipeline_params, subject_model
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario_path, overrides={"duration_s": n_frames / 30.0 + 1e-6, "fps": 30.0})
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     images: list[list[np.ndarray]] = []
 
     def keep(fo) -> None:

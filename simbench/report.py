@@ -72,7 +72,7 @@ def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float]
         parts += [""]
     parts += list(extra_sections or [])
     parts += ["## Wall time", "", "| phase | s |", "|---|---|"] + [f"| {k} | {v:.2f} |" for k, v in timings.items()] + [""]
-    parts += ["## Files", "", "- `videos/*.mp4`: what each camera saw", "- `ground_truth/`: exact truth (format in `simbench/ground_truth.py`)",
+    parts += ["## Files", "", "- `videos/*.mp4`: what each camera saw", "- `ground_truth/`: exact truth (format in `simbench/stage/ground_truth.py`)",
               "- `exports/`: `markers.c3d`, `markers.trc`, `markers.csv`, `skeleton.bvh`, `calibration.yml`, `label_template.csv`",
               "- `metrics.json`", ""]
     path = out / "report.md"

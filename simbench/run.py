@@ -32,10 +32,11 @@ from mocap.detection import DetectionParams
 from mocap.errors import MocapInputError
 from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
+from simbench.stage.stage import Stage
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
-from simbench.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
+from simbench.stage.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
 
@@ -104,7 +105,7 @@ class _Stages:
         return any(f.stage == stage for f in self.failures)
 
 
-def label_template(bench: Bench) -> LabelTemplate:
+def label_template(bench: Stage) -> LabelTemplate:
     """The subject's markers in its T-pose, subject-local frame (what a user's template holds);
     for a real capture (no humanoid), its markers in the capture's reference frame."""
     reference = bench.capture_reference()
@@ -120,7 +121,7 @@ def label_template(bench: Bench) -> LabelTemplate:
     return LabelTemplate(tuple(bench.marker_names), pos)
 
 
-def subject_model(bench: Bench) -> SubjectModel | None:
+def subject_model(bench: Stage) -> SubjectModel | None:
     """The humanoid's subject model; None for a real capture (no body: markers only)."""
     if bench.capture_reference() is not None:
         return None
@@ -189,7 +190,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
     output = AtomicOutputDir(out, scenario=scenario.name, kind="run") if (out is not None and write_outputs) else None
     with output if output is not None else nullcontext() as tmp:
         stages = _Stages(output.public if output is not None else str)
-        bench = Bench.from_scenario(scenario)
+        bench = build_stage(scenario)
         C = len(bench.cameras)
         has_markers = len(bench.marker_names) > 0
         stream = DetectionStream(C, DetectionParams(mode=scenario.sensor.mode)) if has_markers else None
@@ -334,7 +335,7 @@ def _jsonable(v):
     return v
 
 
-def _contact_sheet(bench: Bench, gt, kept: dict[int, np.ndarray], path: Path) -> None:
+def _contact_sheet(bench: Stage, gt, kept: dict[int, np.ndarray], path: Path) -> None:
     from simbench.render.contact_sheet import contact_sheet
 
     rows = sorted(kept)

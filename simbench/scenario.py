@@ -284,7 +284,7 @@ class ShirtPipelineConfig(_Model):
 
 
 class CalibrationSceneConfig(_Model):
-    """Calibration pictures taken before the take (``simbench/calibration_scene.py``).
+    """Calibration pictures taken before the take (``simbench/stage/calibration_scene.py``).
 
     A printed board is held still in ``n_views`` poses through the volume, each facing a
     pair of cameras and tilted, plus (``floor_view``) one view of it lying on the floor

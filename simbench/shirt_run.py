@@ -37,7 +37,8 @@ from mocap.shirt.ik import IKPriors, train_priors
 from mocap.shirt.pipeline import STAGES, ShirtPipelineParams, ShirtTracker, initial_white_balance
 from mocap.shirt.pose_database import PoseDatabase
 from mocap.shirt.shirt_model import UPPER_BODY_JOINTS, UPPER_NV, ShirtModel
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
+from simbench.stage.stage import Stage
 from simbench.render import ids as idc
 from simbench.render.frames import Pose, frame_rng
 from simbench.scenario import Scenario
@@ -95,7 +96,7 @@ def scribble_labels(id_map: np.ndarray, patch_colour: np.ndarray, margin_px: int
     return out
 
 
-def render_empty_frames(bench: Bench, n: int = 3) -> list[list[np.ndarray]]:
+def render_empty_frames(bench: Stage, n: int = 3) -> list[list[np.ndarray]]:
     """``n`` frames per camera of the empty scene (the subject moved far below the floor), lights as at the start."""
     fr = bench.frame_renderer()
     times = bench.scenario.frame_times()[:n]
@@ -109,7 +110,7 @@ def render_empty_frames(bench: Bench, n: int = 3) -> list[list[np.ndarray]]:
     return out
 
 
-def session_inputs(bench: Bench, frames: np.ndarray, gt, colours: ColourModel, patch_colour: np.ndarray):
+def session_inputs(bench: Stage, frames: np.ndarray, gt, colours: ColourModel, patch_colour: np.ndarray):
     """What the user provides at the start of a session: ``W`` per camera and the not-shirt colours
     (from frame 0's labels), and frames of the empty scene."""
     labels = [scribble_labels(gt.id_maps[n][0], patch_colour) for n in gt.camera_names]
@@ -139,7 +140,7 @@ class ShirtSession:
         return ShirtTracker(self.db, t.colour_model, t.priors, self.calibration, self.W0, params, self.empty, self.other)
 
 
-def start_session(bench: Bench, frames: np.ndarray, gt, echo=print) -> ShirtSession:
+def start_session(bench: Stage, frames: np.ndarray, gt, echo=print) -> ShirtSession:
     """Database and training (built or loaded from the cache) and the session inputs of a take."""
     cfg = bench.scenario.shirt_pipeline
     sampling = PoseSampling(n_poses=cfg.database_size)
@@ -202,12 +203,12 @@ def _training_key(scenario: Scenario, db: PoseDatabase, n_frames: int) -> str:
 
 
 def render_training_takes(scenario: Scenario, n_frames: int, echo=print) -> list:
-    """Render the training takes: ``[(Bench, RenderedSequence)]``."""
-    from simbench.rendering import render_frames
+    """Render the training takes: ``[(Stage, RenderedSequence)]``."""
+    from simbench.stage.rendering import render_frames
 
     takes = []
     for sc in training_scenarios(scenario, n_frames):
-        bench = Bench.from_scenario(sc)
+        bench = build_stage(sc)
         t0 = time.perf_counter()
         seq = render_frames(bench, keep_frames=True, keep_ids=True)
         echo(f"shirt training: rendered {sc.name} ({seq.ground_truth.n_frames} frames) in {time.perf_counter() - t0:.0f} s")
@@ -386,14 +387,14 @@ def _plots(out: Path, times: np.ndarray, gt_angle: np.ndarray, full_angle: np.nd
     return names
 
 
-def run_shirt_capture(bench: Bench, frames: np.ndarray, gt, out_dir: Path | None, echo=print) -> tuple[dict, list[str]]:
+def run_shirt_capture(bench: Stage, frames: np.ndarray, gt, out_dir: Path | None, echo=print) -> tuple[dict, list[str]]:
     """The hook of ``simbench run``: full method and baseline on the same frames, scored.
 
     Parameters
     ----------
-    bench : Bench
+    bench : Stage
     frames : (F, C, H, W, 3) uint8 RGB
-    gt : simbench.ground_truth.GroundTruth
+    gt : simbench.stage.ground_truth.GroundTruth
         With id maps (only frame 0's are given to the pipeline, as the user's scribbles).
     out_dir : Path or None
         Where plots (``plots/``) and the estimated poses (``shirt/``) go.
@@ -519,13 +520,13 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     configure_gl_environment()
     from mocap.shirt.background import BackgroundModel
     from mocap.shirt.histogram_search import naive_search, search_shirt
-    from simbench.rendering import render_frames
+    from simbench.stage.rendering import render_frames
     from simbench.scenario import load_scenario
 
     path = scenario_path or str(Path(__file__).resolve().parent.parent / "scenarios" / "shirt_office.toml")
     sc = load_scenario(path)
     sc = sc.with_overrides({"duration_s": (n_frames + 3) / sc.fps, "motion.start_s": 1.0})
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     echo(f"simbench shirt benchmark: {sc.name}, {len(bench.cameras)} cameras {bench.cameras[0].width}x{bench.cameras[0].height}, "
          f"{n_frames} frames timed after 3 warm-up frames, one core (BLAS, OpenCV, faiss: 1 thread)")
     seq = render_frames(bench, keep_frames=True, keep_ids=True)

@@ -15,7 +15,7 @@ import pytest
 
 from mocap.calib.board_detection import DetectionSettings, detect_board
 from mocap.calib.boards import board_texture_layout
-from simbench.calibration_scene import (
+from simbench.stage.calibration_scene import (
     BOARD_MARGIN_SQUARES,
     BOARD_TEXTURE_PX_PER_M,
     board_spec,
@@ -182,7 +182,7 @@ def test_charuco_board_corners_and_origin(tmp_path):
     lay = board_texture_layout(spec, BOARD_TEXTURE_PX_PER_M, BOARD_MARGIN_SQUARES)
     poses = sample_board_poses(cams, cfg, spec, lay, np.random.default_rng(1))
     images, _ = render_board_views(sc, cams, Lighting(sc.lighting), spec, poses, noise_seed=5)
-    from simbench.calibration_scene import CalibrationScene
+    from simbench.stage.calibration_scene import CalibrationScene
     from mocap.calibration import Calibration
 
     truth = Calibration(tuple(c.calibration_camera() for c in cams))

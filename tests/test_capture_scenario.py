@@ -13,10 +13,10 @@ import pytest
 
 from mocap.exports import write_c3d
 from mocap.types import Trajectories
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.errors import ScenarioError
 from simbench.render import ids as idc
-from simbench.rendering import render_frames
+from simbench.stage.rendering import render_frames
 from simbench.scenario import CaptureGapsConfig, load_scenario
 from simbench.scenes.capture_motion import load_capture_clip, seeded_gaps
 
@@ -58,7 +58,7 @@ def qualisys_render(tmp_path_factory):
     """12 frames at 100 fps from 0.5 s into Qualisys.c3d, 4 cameras, seeded gaps of 2-4 frames in 20 % of the markers."""
     sc = _scenario(tmp_path_factory.mktemp("q"), f'c3d = "{QUALISYS}"\nstart_s = 0.5\n'
                    "gaps = { fraction = 0.2, min_frames = 2, max_frames = 4 }", "seed = 5\nfps = 100.0\nduration_s = 0.12")
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     return sc, bench, seq
 

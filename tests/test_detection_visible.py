@@ -13,8 +13,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from mocap.detection import DetectionParams, _noise_std, detect_markers
-from simbench.bench import Bench
-from simbench.rendering import render_frames
+from simbench.stage.build import build_stage
+from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 
 H, W = 240, 320
@@ -190,7 +190,7 @@ def _detection_scores(overrides: dict[str, object], path: str) -> tuple[float, f
     with any visible area), median and 95th percentile centroid error (px) of markers
     at least 90 % visible."""
     sc = load_scenario(path, overrides={"duration_s": 0.2, **overrides})
-    seq = render_frames(Bench.from_scenario(sc), keep_frames=True, keep_ids=False)
+    seq = render_frames(build_stage(sc), keep_frames=True, keep_ids=False)
     gt = seq.ground_truth
     params = DetectionParams(mode=sc.sensor.mode)
     hits = n_vis = n_false = 0

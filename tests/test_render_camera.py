@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from mocap.detection import DetectionParams, detect_markers
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.render.camera import VirtualCamera, look_at_rotation
 from simbench.render.color import cct_to_rgb
 from simbench.render.lighting import Lighting
 from simbench.render.sensor import Sensor, WhiteBalance
-from simbench.rendering import render_frames
+from simbench.stage.rendering import render_frames
 from simbench.scenario import CameraConfig, LightingConfig, SensorConfig, load_scenario
 
 
@@ -30,7 +30,7 @@ def test_distorted_render_puts_markers_where_opencv_projects_them():
     true marker centres, including near the image border."""
     sc = load_scenario("scenarios/wide_angle_distorted.toml", overrides={
         "duration_s": 0.1, "rig.count": 2, "sensor.shot_noise": False, "sensor.read_noise_e": 0.0})
-    seq = render_frames(Bench.from_scenario(sc), keep_frames=True)
+    seq = render_frames(build_stage(sc), keep_frames=True)
     gt = seq.ground_truth
     d_all, r_all = [], []
     for f in range(gt.n_frames):
@@ -55,7 +55,7 @@ def test_shutter_blur_streak_grows_with_exposure():
         sc = load_scenario("scenarios/blur_zigzag.toml", overrides={
             "duration_s": 0.1, "rig.count": 1, "sensor.exposure_ms": exposure, "sensor.shot_noise": False,
             "sensor.read_noise_e": 0.0, "motion.start_s": 1.4})
-        seq = render_frames(Bench.from_scenario(sc), keep_frames=True)
+        seq = render_frames(build_stage(sc), keep_frames=True)
         det = detect_markers(seq.frames[1, 0], DetectionParams(mode="ir"))
         areas[exposure] = (np.percentile(det.area, 90), seq.ground_truth.n_subframes[1])
     assert areas[16.0][1] > areas[4.0][1] >= 1
@@ -97,7 +97,7 @@ def test_light_event_switches_the_lamp_off_at_its_time():
 
 def test_tungsten_off_scenario_frames_get_bluer_after_the_event():
     sc = load_scenario("scenarios/shirt_tungsten_off.toml", overrides={"duration_s": 3.0, "fps": 2.0})
-    seq = render_frames(Bench.from_scenario(sc), keep_frames=True)
+    seq = render_frames(build_stage(sc), keep_frames=True)
     before, after = seq.frames[1, 0].reshape(-1, 3).mean(0), seq.frames[4, 0].reshape(-1, 3).mean(0)
     assert seq.ground_truth.light_intensity[1, sc_index(seq, "tungsten")] > 0
     assert seq.ground_truth.light_intensity[4, sc_index(seq, "tungsten")] == 0

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from mocap.detection import DetectionParams, detect_markers
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.render import ids as idc
-from simbench.rendering import render_frames
+from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 
 
@@ -25,7 +25,7 @@ def _quickstart(**overrides):
 def clean_render():
     """Noise-free, blur-free quickstart frames (6 frames x 4 cameras) with id maps."""
     sc = _quickstart(**{"motion.start_s": 1.0})
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     return sc, seq
 
@@ -116,12 +116,12 @@ def test_visibility_flags_agree_with_id_maps(clean_render):
 def test_visible_fraction_drops_behind_a_barrier():
     """A barrier between a camera and the subject hides the markers behind it."""
     sc = _quickstart(**{"duration_s": 0.07, "rig.count": 1, "rig.start_deg": 0.0})
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     open_frac = render_frames(bench, keep_frames=False).ground_truth.marker_visible_frac[0, 0]
     from simbench.scenario import BarrierConfig
 
     walled = sc.model_copy(update={"props": (BarrierConfig(size_m=(0.05, 2.0, 3.0), position=(1.5, 0.0, 1.5)),)})
-    hidden = render_frames(Bench.from_scenario(walled), keep_frames=False).ground_truth
+    hidden = render_frames(build_stage(walled), keep_frames=False).ground_truth
     assert open_frac.mean() > 0.5
     assert hidden.marker_visible_frac[0, 0].max() == 0.0
     assert not hidden.marker_visible.any()
@@ -131,7 +131,7 @@ def test_same_scenario_and_seed_give_identical_frames_and_truth():
     sc = _quickstart(**{"duration_s": 0.1, "sensor.shot_noise": True, "sensor.read_noise_e": 3.0, "rig.count": 2})
 
     def digest():
-        seq = render_frames(Bench.from_scenario(sc), keep_frames=True, keep_ids=True)
+        seq = render_frames(build_stage(sc), keep_frames=True, keep_ids=True)
         return hashlib.sha256(seq.frames.tobytes()).hexdigest(), seq.ground_truth
 
     h1, g1 = digest()
@@ -141,6 +141,6 @@ def test_same_scenario_and_seed_give_identical_frames_and_truth():
     np.testing.assert_array_equal(g1.qpos, g2.qpos)
     # A different seed changes the sensor noise, not the truth.
     sc3 = sc.with_overrides({"seed": 99})
-    seq3 = render_frames(Bench.from_scenario(sc3), keep_frames=True)
+    seq3 = render_frames(build_stage(sc3), keep_frames=True)
     assert hashlib.sha256(seq3.frames.tobytes()).hexdigest() != h1
     np.testing.assert_array_equal(seq3.ground_truth.markers_3d, g1.markers_3d)

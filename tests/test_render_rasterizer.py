@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.scenario import RigConfig, Scenario
 
 
@@ -15,7 +15,7 @@ def test_cached_static_set_with_dirty_rectangles_equals_a_full_redraw():
     sc = Scenario(name="raster_cache", duration_s=1.0, rig=RigConfig(count=3, radius_m=3.2, height_m=2.0,
                                                                     look_at=(0, 0, 0.95), hfov_deg=56),
                   motion={"clip": "zigzag_fast"}, sensor={"mode": "visible", "antialias": 1})
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     fr = bench.frame_renderer()
     raster = fr.raster
     poses = bench.pose_at(sc.frame_times()[[0, 9, 18, 27]])

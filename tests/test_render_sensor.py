@@ -198,10 +198,10 @@ def test_gl_sensor_noise_has_the_shot_and_read_noise_of_the_model(gl_pipeline):
 
 # ---------------------------------------------------------------- whole frames
 def _frames(sc, backend: str) -> np.ndarray:
-    from simbench.bench import Bench
+    from simbench.stage.build import build_stage
     from simbench.render.frames import iterate_frames
 
-    bench = Bench.from_scenario(sc)
+    bench = build_stage(sc)
     fr = bench.frame_renderer()
     fr.set_sensor_backend(backend)
     return np.stack([o.images for o in iterate_frames(fr, sc.frame_times(), bench.pose_at, sc.seed)])

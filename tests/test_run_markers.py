@@ -50,7 +50,7 @@ def test_mocap_markers_cli_on_the_rendered_videos(quickstart_run, tmp_path):
     import subprocess
     import sys
 
-    from simbench.ground_truth import load_ground_truth
+    from simbench.stage.ground_truth import load_ground_truth
 
     result, out = quickstart_run
     r = subprocess.run([sys.executable, "-m", "mocap.cli", "markers", *sorted(str(p) for p in (out / "videos").glob("*.mp4")),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from mocap.errors import InputFileError
-from simbench.bench import body_params, make_scenario_motion
+from simbench.stage.stage import body_params, make_scenario_motion
 from simbench.errors import ScenarioError
 from simbench.regression import load_suites
 from simbench.render.camera import cameras_from_scenario

@@ -9,9 +9,9 @@ import trimesh
 
 from mocap.calibration import Camera
 from mocap.shirt.shirt_model import UPPER_BODY_JOINTS, CropView, look_at_view, rasterise_faces
-from simbench.bench import Bench
+from simbench.stage.build import build_stage
 from simbench.render import ids as idc
-from simbench.rendering import render_frames
+from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 from simbench.scenes.anthropometry import BodyParams
 from simbench.scenes.humanoid import humanoid_mjcf, joint_ranges
@@ -102,7 +102,7 @@ def test_rendered_patches_agree_with_the_bench_renderer(model):
     """The pipeline's id map of the true pose against the GL renderer's: 97 % of the shirt pixels agree."""
     sc = load_scenario("scenarios/shirt_office.toml", overrides={"duration_s": 1 / 30, "motion.start_s": 1.8, "sensor.motion_blur": False,
                                                                  "sensor.antialias": 1})
-    seq = render_frames(Bench.from_scenario(sc), keep_frames=False, keep_ids=True)
+    seq = render_frames(build_stage(sc), keep_frames=False, keep_ids=True)
     gt = seq.ground_truth
     q = model.kin.from_full_qpos(gt.qpos[0])
     for cam in gt.calibration():

@@ -71,7 +71,7 @@ def test_mocap_shirt_cli_tracks_the_rendered_videos(shirt_run, tmp_path):
 
     from mocap.cli import app
     from mocap.shirt.shirt_model import UPPER_BODY_JOINTS
-    from simbench.ground_truth import load_ground_truth
+    from simbench.stage.ground_truth import load_ground_truth
 
     result, out, _ = shirt_run
     gt = load_ground_truth(out)

@@ -111,6 +111,21 @@ def test_coasting_then_lost_after_max_coast_frames():
     assert seen == [COASTING] * 4 + [LOST] * 2
 
 
+@pytest.mark.parametrize("name", PAPER)
+def test_openmocap_labels_without_initial_position_stay_lost_until_reset(name):
+    x0 = np.array([[100.0, 100.0], [np.nan, np.nan]])
+    trk = make_tracker(name, x0, DT, np.random.default_rng(0))
+    for _ in range(3):
+        idx = trk.step(np.array([[100.0, 100.0], [300.0, 300.0]]))
+        np.testing.assert_array_equal(idx, [0, -1])
+        assert list(trk.status) == [TRACKED, LOST] and np.isnan(trk.x_pred[1]).all()
+    trk.reset_labels(np.array([False, True]), np.array([[0.0, 0.0], [300.0, 300.0]]))
+    for _ in range(3):
+        idx = trk.step(np.array([[300.5, 300.0], [100.0, 100.0]]))
+        np.testing.assert_array_equal(idx, [1, 0])
+    np.testing.assert_allclose(trk.x_est[1], [300.5, 300.0], atol=1.0)
+
+
 def test_labels_without_initial_position_stay_lost_until_reset():
     x0 = np.array([[100.0, 100.0], [np.nan, np.nan]])
     trk = make_tracker("kalman", x0, DT, np.random.default_rng(0))

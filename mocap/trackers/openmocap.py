@@ -44,6 +44,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocap.trackers.base import Tracker2D
+from mocap.trackers.condensation import _systematic_flat
 from mocap.trackers.registry import register_tracker
 
 #: ``max_coast_frames`` of the OpenMoCap trackers: a label is never declared lost.
@@ -212,6 +213,7 @@ class OpenMoCapKalmanTracker(Tracker2D):
                              f"{initial_velocity_var!r} and {radius_per_velocity_std!r}")
         self.velocity_noise = float(velocity_noise)
         self.velocity_noise_per_speed = float(velocity_noise_per_speed)
+        self.initial_velocity_noise = float(initial_velocity_noise)
         self.r = r  # (2,) px**2 per image axis
         self.p0 = float(initial_velocity_var)
         self.radius_per_velocity_std = float(radius_per_velocity_std)
@@ -257,6 +259,11 @@ class OpenMoCapKalmanTracker(Tracker2D):
         k0 = self._p00 / s
         k1 = self._p01 / s
         y = z - self._pos
+        if self._any_lost:  # labels without a position (NaN) are left alone
+            known = np.isfinite(y[:, 0])
+            y[~known] = 0.0
+            k0[~known] = 0.0
+            k1[~known] = 0.0
         self._pos = self._pos + k0 * y
         self._vel = self._vel + k1 * y
         # P = (I - K H) P
@@ -273,6 +280,7 @@ class OpenMoCapKalmanTracker(Tracker2D):
         self._p00[mask] = 0.0
         self._p01[mask] = 0.0
         self._p11[mask] = self.p0
+        self._q[mask] = self.initial_velocity_noise  # a new OpenCV filter
 
     def _drop_velocity(self, mask: np.ndarray) -> None:
         self._vel[mask] = 0.0
@@ -365,7 +373,6 @@ class CondensationTracker(Tracker2D):
     def _predict(self) -> None:
         p = self.p
         _, M, N = p.shape
-        mean = p.mean(axis=2)  # (2, M)
         var = p.var(axis=2)  # (2, M) per-axis particle variance, px**2
         np.maximum(var, 1e-12, out=var)
         self._radius = 0.5 * np.sqrt(var).sum(axis=0)  # mean of the two standard deviations
@@ -376,15 +383,17 @@ class CondensationTracker(Tracker2D):
         d2 = d[0] + d[1]  # (M, N)
         d2 -= d2.min(axis=1, keepdims=True)  # the best particle gets exp(0): no underflow
         w = np.exp(-0.5 * d2)
+        unknown = ~np.isfinite(self._meas[:, 0])  # labels that never had a position
+        if unknown.any():
+            w[unknown] = 1.0
         w /= w.sum(axis=1, keepdims=True)
-        # The weighted mean is the prediction (state) of this frame.
+        # The weighted mean is the prediction (state) of this frame; no gate (NaN) for a
+        # label without a position, as the base class wants.
         centre = np.einsum("amn,mn->ma", p, w)
-        lost = ~np.isfinite(self._meas[:, 0])
-        if lost.any():
-            centre[lost] = mean.T[lost]
+        centre[unknown] = np.nan
         self._centre = centre
         # Selection (systematic, offset 0, as OpenCV's cvConDensUpdateByTime) ...
-        flat = _systematic_flat_zero(w)
+        flat = _systematic_flat(w, np.zeros(M))
         p = p.reshape(2, M * N).take(flat, axis=1).reshape(2, M, N)
         # ... identity drift, uniform diffusion.
         p += (self.rng.random((2, M, N)) * 2.0 - 1.0) * self._half_width[:, None, None]
@@ -406,9 +415,3 @@ class CondensationTracker(Tracker2D):
         """(M, 2) float: the label's last measured position, px (OpenMoCap keeps it while
         the marker is not found)."""
         return self._meas
-
-
-def _systematic_flat_zero(weights: np.ndarray) -> np.ndarray:
-    from mocap.trackers.condensation import _systematic_flat
-
-    return _systematic_flat(weights, np.zeros(weights.shape[0]))

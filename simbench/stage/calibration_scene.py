@@ -435,7 +435,7 @@ class CalibrationScene:
 
 
 def _static_set(scenario: Scenario):
-    """The room: the same seed as ``Bench.frame_renderer``, so the same clutter as the take."""
+    """The room: the same seed as ``Stage.frame_renderer``, so the same clutter as the take."""
     return set_geometry(scenario.set, np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5E7])))
 
 

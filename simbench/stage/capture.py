@@ -1,12 +1,12 @@
-"""The bench of a capture scenario (``[motion] c3d`` / ``trc``): marker spheres only.
+"""The stage of a capture scenario (``[motion] c3d`` / ``trc``): marker spheres only.
 
-:class:`CaptureBench` is a :class:`~simbench.bench.Bench` whose markers are the real
+:class:`CaptureStage` is a :class:`~simbench.stage.stage.Stage` whose markers are the real
 capture's (:mod:`simbench.scenes.capture_motion`) instead of a humanoid's marker sites:
 
 * The MuJoCo scene keeps its humanoid (the simulation drives one, and props collide with
   it) but has no marker sites and no rendered surface, and the humanoid is parked
   :data:`PARK_HEIGHT_M` above the floor, out of reach of any prop. Props still work.
-* :meth:`CaptureBench.states` returns the capture's marker positions (NaN where missing)
+* :meth:`CaptureStage.states` returns the capture's marker positions (NaN where missing)
   and NaN for the humanoid's qpos and joint centres: there is no body to score.
 * The renderer draws each marker at its position, and nothing where the position is NaN,
   so a missing sample is an absent marker in the frames and in the ground truth's
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simbench.bench import Bench, body_params, make_props
+from simbench.stage.stage import Stage, body_params, make_props
 from simbench.errors import ScenarioError
 from simbench.render.camera import cameras_from_scenario
 from simbench.render.frames import FrameRenderer
@@ -33,7 +33,7 @@ from simbench.scenes.motions import Motion
 from simbench.scenes.scene import build_scene
 from simbench.scenes.simulation import SceneStates
 
-__all__ = ["CaptureBench", "PARK_HEIGHT_M"]
+__all__ = ["CaptureStage", "PARK_HEIGHT_M"]
 
 PARK_HEIGHT_M = 100.0  # the unused humanoid stands this high: no prop reaches it, no floor contact
 
@@ -62,13 +62,13 @@ class _AbsentMarkersGeometry(MovingGeometry):
 
 
 @dataclass
-class CaptureBench(Bench):
+class CaptureStage(Stage):
     """A bench that replays a real capture's markers (see the module doc)."""
 
     clip: CaptureClip | None = None
 
     @classmethod
-    def from_capture_scenario(cls, scenario: Scenario) -> "CaptureBench":
+    def from_capture_scenario(cls, scenario: Scenario) -> "CaptureStage":
         where = scenario.source_dir or scenario.name
         if scenario.subject.shirt:
             raise ScenarioError(where, "subject.shirt", True, "a capture scenario renders the file's markers only; remove shirt")

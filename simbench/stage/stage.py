@@ -1,15 +1,16 @@
-"""A scenario assembled into a bench: scene, motion, cameras, lights and renderer.
+"""A scenario assembled into a stage: scene, motion, cameras, lights and renderer.
 
 This is the layer between the validated :class:`~simbench.scenario.Scenario` and
 the per-frame loop: it builds the MuJoCo scene (humanoid with marker sites, props),
 the motion clip, the virtual cameras, the lights, the triangle geometry for the
 rasteriser, and a ``pose_at(times)`` function that simulates the scene at any set of
-(sub-frame) instants.
+(sub-frame) instants. :func:`simbench.stage.build.build_stage` picks this stage or,
+for a real capture's markers, :class:`~simbench.stage.capture.CaptureStage`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -112,7 +113,7 @@ def _bvh_motion(scenario: Scenario, params: BodyParams, needed_s: float) -> Moti
 
 
 @dataclass
-class Bench:
+class Stage:
     scenario: Scenario
     params: BodyParams
     scene: Scene
@@ -121,14 +122,13 @@ class Bench:
     lighting: Lighting
     marker_names: list[str]
     prop_names: list[str]
-    _body_index: dict[str, int] = field(default_factory=dict)
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> "Bench":
+    def from_scenario(cls, scenario: Scenario) -> "Stage":
         if scenario.motion.c3d or scenario.motion.trc:  # a real capture's markers, no humanoid
-            from simbench.scenes.capture_scene import CaptureBench
+            from simbench.stage.capture import CaptureStage
 
-            return CaptureBench.from_capture_scenario(scenario)
+            return CaptureStage.from_capture_scenario(scenario)
         params = body_params(scenario)
         rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0xB0D7]))
         marker_set = None if scenario.subject.markers == "none" else scenario.subject.markers

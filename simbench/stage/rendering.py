@@ -17,8 +17,9 @@ import cv2
 import numpy as np
 
 from simbench import interrupts
-from simbench.bench import Bench
-from simbench.ground_truth import GroundTruth
+from simbench.stage.build import build_stage
+from simbench.stage.stage import Stage
+from simbench.stage.ground_truth import GroundTruth
 from simbench.output_dir import AtomicOutputDir  # noqa: F401  (re-exported: the bench's output folders)
 from simbench.render.contact_sheet import contact_sheet
 from simbench.render.frames import FrameOutput, iterate_frames
@@ -40,7 +41,7 @@ class RenderedSequence:
     frames: np.ndarray | None    # (F, C, H, W, 3) uint8 when kept in memory
 
 
-def _ground_truth(bench: Bench, outputs: list[FrameOutput], keep_ids: bool) -> GroundTruth:
+def _ground_truth(bench: Stage, outputs: list[FrameOutput], keep_ids: bool) -> GroundTruth:
     sc = bench.scenario
     times = np.array([o.time_s for o in outputs])
     st = bench.states(times)
@@ -75,7 +76,7 @@ def _ground_truth(bench: Bench, outputs: list[FrameOutput], keep_ids: bool) -> G
     return gt
 
 
-def render_frames(bench: Bench, on_frame: Callable[[FrameOutput], None] | None = None,
+def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None = None,
                   keep_frames: bool = True, keep_ids: bool = True, progress=None) -> RenderedSequence:
     """Render every frame (in memory), calling ``on_frame`` for each as it is made."""
     sc = bench.scenario
@@ -96,7 +97,7 @@ def render_frames(bench: Bench, on_frame: Callable[[FrameOutput], None] | None =
     return RenderedSequence(gt, np.stack(frames) if keep_frames and frames else None)
 
 
-def write_render_outputs(bench: Bench, seq_writer_dir: Path, png: bool) -> tuple[Callable[[FrameOutput], None], Callable[[], None]]:
+def write_render_outputs(bench: Stage, seq_writer_dir: Path, png: bool) -> tuple[Callable[[FrameOutput], None], Callable[[], None]]:
     """Per-frame writer (MP4 per camera, PNG on request) and its closer."""
     sc = bench.scenario
     videos = seq_writer_dir / "videos"
@@ -120,7 +121,7 @@ def write_render_outputs(bench: Bench, seq_writer_dir: Path, png: bool) -> tuple
     return on_frame, close
 
 
-def write_contact_sheet(bench: Bench, seq: RenderedSequence, path: Path, n_rows: int = 3) -> None:
+def write_contact_sheet(bench: Stage, seq: RenderedSequence, path: Path, n_rows: int = 3) -> None:
     gt = seq.ground_truth
     F = gt.n_frames
     rows = sorted(set(np.linspace(0, F - 1, min(n_rows, F)).round().astype(int)))
@@ -140,7 +141,7 @@ def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, prog
     see :mod:`simbench.output_dir`.
     """
     with AtomicOutputDir(out, scenario=scenario.name, kind="render") as tmp:  # refuses before anything renders
-        bench = Bench.from_scenario(scenario)
+        bench = build_stage(scenario)
         on_frame, close = write_render_outputs(bench, tmp, png)
         try:
             seq = render_frames(bench, on_frame=on_frame, keep_frames=True, keep_ids=True, progress=progress)
