@@ -18,7 +18,7 @@ from simbench.errors import ScenarioError
 from simbench.render import ids as idc
 from simbench.stage.rendering import render_frames
 from simbench.scenario import CaptureGapsConfig, load_scenario
-from simbench.scenes.capture_motion import load_capture_clip, seeded_gaps
+from simbench.stage.capture import load_capture_clip, seeded_gaps
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 QUALISYS = DATA / "c3d" / "Qualisys.c3d"

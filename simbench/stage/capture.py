@@ -1,7 +1,10 @@
 """The stage of a capture scenario (``[motion] c3d`` / ``trc``): marker spheres only.
 
-:class:`CaptureStage` is a :class:`~simbench.stage.stage.Stage` whose markers are the real
-capture's (:mod:`simbench.scenes.capture_motion`) instead of a humanoid's marker sites:
+:func:`load_capture_clip` reads the scenario's capture file and places it for the
+scenario (window, placement under the rig, selection, seeded gaps: see
+:mod:`simbench.scenes.capture_motion`). :class:`CaptureStage` is a
+:class:`~simbench.stage.stage.Stage` whose markers are that capture's instead of a
+humanoid's marker sites:
 
 * The MuJoCo scene keeps its humanoid (the simulation drives one, and props collide with
   it) but has no marker sites and no rendered surface, and the humanoid is parked
@@ -17,25 +20,135 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from simbench.stage.stage import Stage, body_params, make_props
+from mocap.errors import MocapInputError
+from mocap.exports import CaptureTrajectories, read_c3d, read_trc
 from simbench.errors import ScenarioError
 from simbench.render.camera import cameras_from_scenario
 from simbench.render.frames import FrameRenderer
 from simbench.render.geometry import MovingGeometry
 from simbench.render.lighting import Lighting
-from simbench.scenario import Scenario
-from simbench.scenes.capture_motion import CaptureClip, CaptureReference, load_capture_clip
+from simbench.scenario import CaptureGapsConfig, Scenario
+from simbench.scenes.capture_motion import CaptureClip, CaptureReference
 from simbench.scenes.humanoid import NQ, tpose_qpos
 from simbench.scenes.motions import Motion
 from simbench.scenes.scene import build_scene
 from simbench.scenes.simulation import SceneStates
+from simbench.stage.stage import Stage, body_params, make_props
 
-__all__ = ["CaptureStage", "PARK_HEIGHT_M"]
+__all__ = ["CaptureStage", "PARK_HEIGHT_M", "load_capture_clip", "seeded_gaps", "look_at_point"]
 
 PARK_HEIGHT_M = 100.0  # the unused humanoid stands this high: no prop reaches it, no floor contact
+
+
+def look_at_point(scenario: Scenario) -> np.ndarray:
+    """The point the cameras aim at: the rig's ``look_at``, else the mean of the cameras'."""
+    if scenario.rig is not None:
+        return np.asarray(scenario.rig.look_at, dtype=np.float64)
+    return np.mean([c.look_at for c in scenario.cameras], axis=0)
+
+
+def seeded_gaps(cfg: CaptureGapsConfig, n_frames: int, n_markers: int, rng: np.random.Generator) -> np.ndarray:
+    """Gap mask ``(n_frames, n_markers)`` bool: ``round(fraction * M)`` markers get ``runs`` runs each.
+
+    The frames ``1 .. n_frames - 2`` are split into ``runs`` equal spans; each run lies in
+    its own span, its length drawn uniformly in ``min_frames .. max_frames`` (at most the
+    span minus one frame, so runs never touch), its start uniformly where it fits.
+    """
+    mask = np.zeros((n_frames, n_markers), dtype=bool)
+    n_chosen = int(round(cfg.fraction * n_markers))
+    span = (n_frames - 2) // cfg.runs
+    if n_chosen == 0 or span < 2:
+        return mask
+    for m in np.sort(rng.choice(n_markers, size=n_chosen, replace=False)):
+        for r in range(cfg.runs):
+            length = min(int(rng.integers(cfg.min_frames, cfg.max_frames + 1)), span - 1)
+            lo = 1 + r * span
+            start = lo + int(rng.integers(0, span - length))  # last start leaves one free frame
+            mask[start : start + length, m] = True
+    return mask
+
+
+def _read(scenario: Scenario) -> tuple[CaptureTrajectories, str, str]:
+    m = scenario.motion
+    key = "c3d" if m.c3d else "trc"
+    given = m.c3d or m.trc
+    path = scenario.resolve_path(given)
+    try:
+        if key == "c3d":
+            traj = read_c3d(path, up_axis=m.up_axis)
+        else:
+            axes = {"auto": "auto", "y": "opensim", "z": "world"}.get(m.up_axis)
+            if axes is None:
+                raise ScenarioError(scenario.source_dir or scenario.name, "motion.up_axis", m.up_axis,
+                                    "a TRC file's up axis is 'auto', 'y' or 'z'")
+            traj = read_trc(path, axes=axes)
+    except MocapInputError as exc:
+        raise ScenarioError(scenario.source_dir or scenario.name, f"motion.{key}", given, f"cannot use it: {exc}") from None
+    return traj, key, given
+
+
+def load_capture_clip(scenario: Scenario) -> CaptureClip:
+    """Read the scenario's capture file and place it for the scenario (see the module doc).
+
+    Raises
+    ------
+    ScenarioError
+        The file cannot be read, a selected label is not a physical marker of the file,
+        the window does not fit in the capture, or no marker has a sample in it.
+    """
+    m = scenario.motion
+    where = scenario.source_dir or scenario.name
+    traj, key, given = _read(scenario)
+    labels = list(traj.labels)
+    if m.labels is not None:
+        for name in m.labels:
+            if name not in labels:
+                why = f" (set aside: {traj.set_aside[name]})" if name in traj.set_aside else ""
+                raise ScenarioError(where, "motion.labels", name,
+                                    f"not a physical marker of {given}{why}; choose from {labels}")
+        if len(set(m.labels)) != len(m.labels):
+            raise ScenarioError(where, "motion.labels", list(m.labels), "each label once")
+        idx = [labels.index(n) for n in labels if n in set(m.labels)]  # file order
+    else:
+        idx = list(range(len(labels)))
+    rate = traj.point_rate_hz
+    xyz = traj.xyz[:, idx]
+    names = [labels[i] for i in idx]
+    capture_s = (len(xyz) - 1) / rate
+    end_s = m.start_s + m.speed * (scenario.duration_s)
+    if end_s > capture_s + 1e-9:
+        raise ScenarioError(where, "duration_s", scenario.duration_s,
+                            f"the window motion.start_s + motion.speed * duration_s = {end_s:.3f} s runs past the end "
+                            f"of {given} ({capture_s:.3f} s of capture at {rate:g} Hz); shorten it or start earlier")
+    F = scenario.n_frames
+    frame_times = scenario.frame_times()
+    provisional = CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, np.zeros((F, len(names)), bool),
+                              np.zeros(2), Path(given))
+    at_frames = provisional.file_positions_at(frame_times)  # (F, M, 3)
+    seen = np.isfinite(at_frames).all(axis=2).any(axis=0)
+    if not seen.any():
+        raise ScenarioError(where, "motion.start_s", m.start_s,
+                            f"no marker of {given} has a sample in the window {m.start_s:g}-{end_s:g} s; move the window")
+    dropped = tuple(n for n, s in zip(names, seen) if not s)
+    keep = np.flatnonzero(seen)
+    xyz, names, at_frames = xyz[:, keep], [names[i] for i in keep], at_frames[:, keep]
+    lo = np.nanmin(at_frames[..., :2].reshape(-1, 2), axis=0)
+    hi = np.nanmax(at_frames[..., :2].reshape(-1, 2), axis=0)
+    shift = look_at_point(scenario)[:2] - 0.5 * (lo + hi)
+    xyz = xyz.copy()
+    xyz[..., :2] += shift
+    if m.gaps is not None:
+        rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x6A95]))
+        gap_mask = seeded_gaps(m.gaps, F, len(names), rng)
+    else:
+        gap_mask = np.zeros((F, len(names)), dtype=bool)
+    return CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, gap_mask, shift, Path(given),
+                       set_aside=dict(traj.set_aside), dropped=dropped, source_up_axis=traj.source_up_axis,
+                       up_axis_reason=traj.up_axis_reason)
 
 
 class _AbsentMarkersGeometry(MovingGeometry):

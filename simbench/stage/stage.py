@@ -125,10 +125,8 @@ class Stage:
 
     @classmethod
     def from_scenario(cls, scenario: Scenario) -> "Stage":
-        if scenario.motion.c3d or scenario.motion.trc:  # a real capture's markers, no humanoid
-            from simbench.stage.capture import CaptureStage
-
-            return CaptureStage.from_capture_scenario(scenario)
+        """The humanoid's stage (a capture scenario's is :class:`~simbench.stage.capture.CaptureStage`;
+        :func:`simbench.stage.build.build_stage` picks the right one)."""
         params = body_params(scenario)
         rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0xB0D7]))
         marker_set = None if scenario.subject.markers == "none" else scenario.subject.markers
