@@ -74,7 +74,7 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
     Exit code 3: the run finished but a stage after rendering failed (e.g. an export); metrics.json and report.md are written and name the stage.
     """
     from simbench.output_dir import default_run_dir, replaceable_state
-    from simbench.run import run_scenario
+    from simbench.pipelines.run import run_scenario
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario, overrides=parse_overrides(set_))
@@ -141,7 +141,7 @@ def bench_pipeline(frames: int = typer.Option(30, help="frames of the scenario r
     print(run_pipeline_benchmark(n_frames=frames, scenario_path=str(scenario), passes=passes).table())
 
 
-from simbench.shirt_db import bench_shirt_command, shirt_app  # noqa: E402  (colour-shirt pipeline, issue 6)
+from simbench.pipelines.shirt_database import bench_shirt_command, shirt_app  # noqa: E402  (colour-shirt pipeline, issue 6)
 app.add_typer(shirt_app, name="shirt")
 bench_app.command("shirt")(bench_shirt_command)
 

@@ -76,7 +76,7 @@ def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/q
     from mocap.marker_pipeline import capture_from_detections
     from simbench.stage.build import build_stage
     from simbench.stage.rendering import render_frames
-    from simbench.run import label_template, pipeline_params, subject_model
+    from simbench.pipelines.run import label_template, pipeline_params, subject_model
     from simbench.scenario import load_scenario
 
     sc = load_scenario(scenario_path, overrides={"duration_s": n_frames / 30.0 + 1e-6, "fps": 30.0})

@@ -362,12 +362,12 @@ def execute_run(task: RunTask) -> RunRecord:
         started = time.time()
         warnings.simplefilter("always")
         try:
-            from simbench.run import run_scenario
+            from simbench.pipelines.run import run_scenario
 
             result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
             metrics = {k: float(v) for k, v in result.metrics.items()}
             # A stage that failed after rendering (e.g. an export) fails the run; its
-            # metrics are kept with it (simbench.run: a run never loses its metrics).
+            # metrics are kept with it (simbench.pipelines.run: a run never loses its metrics).
             status, error = STATUS_OK, ""
             if not result.ok:
                 status = STATUS_FAILED

@@ -19,9 +19,9 @@ from typer.testing import CliRunner
 from eval.calibration_metrics import compare_calibrations
 from mocap.calibration import Calibration
 from mocap.cli import app
-from simbench.calibration_run import calibrate_scene, score_calibration
+from simbench.pipelines.calibration import calibrate_scene, score_calibration
 from simbench.stage.calibration_scene import render_calibration_scene
-from simbench.run import run_scenario
+from simbench.pipelines.run import run_scenario
 from simbench.scenario import load_scenario
 
 PAIR = """

@@ -269,7 +269,7 @@ def test_run_scores_a_capture_without_a_humanoid(tmp_path):
     labelled and scored against the capture."""
     import json
 
-    from simbench.run import run_scenario
+    from simbench.pipelines.run import run_scenario
 
     sc = _scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.2', "seed = 2\nfps = 100.0\nduration_s = 0.15")
     result = run_scenario(sc, tmp_path / "out")

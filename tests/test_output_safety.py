@@ -42,7 +42,8 @@ def _tree(root: Path) -> dict[str, bytes | None]:
 @pytest.fixture()
 def no_render(monkeypatch):
     """Fail the test if anything starts rendering."""
-    from simbench import rendering, run
+    from simbench.pipelines import run
+    from simbench.stage import rendering
 
     calls: list[str] = []
 
@@ -180,7 +181,7 @@ def test_stale_partials_removed_only_with_the_marker_and_a_dead_writer(tmp_path)
 
 
 def _fail_exports(monkeypatch):
-    from simbench import run
+    from simbench.pipelines import run
 
     def failing_export(capture, out_dir, calibration, subject=None):
         Path(out_dir).mkdir(parents=True, exist_ok=True)
@@ -213,7 +214,7 @@ def test_a_failing_export_keeps_metrics_and_report_and_exits_3(tmp_path, monkeyp
 
 
 def test_a_failing_skeleton_solve_keeps_the_markers(tmp_path, monkeypatch):
-    from simbench import run
+    from simbench.pipelines import run
     from simbench.scenario import load_scenario
 
     real = run.capture_from_detections

@@ -42,7 +42,7 @@ def _partials(parent: Path) -> list[Path]:
 def _tiny_run(out: Path) -> None:
     """A tiny run in this process (no interpreter start-up to pay for)."""
     from simbench.cli_common import parse_overrides
-    from simbench.run import run_scenario
+    from simbench.pipelines.run import run_scenario
     from simbench.scenario import load_scenario
 
     assert run_scenario(load_scenario(QUICKSTART, overrides=parse_overrides(TINY[1::2])), out).ok
@@ -202,7 +202,7 @@ def test_sweep_workers_die_with_the_parent(tmp_path, sig):
 # SIGTERM to itself inside the patched stage, either way.
 WRAPPED = """
 import ctypes, os, signal, sys, time
-from simbench import run
+from simbench.pipelines import run
 from simbench.cli import main
 
 def self_sigterm():

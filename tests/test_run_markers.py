@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mocap.exports import read_c3d
-from simbench.run import run_scenario
+from simbench.pipelines.run import run_scenario
 from simbench.scenario import load_scenario
 
 

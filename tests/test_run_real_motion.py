@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from simbench.run import run_scenario
+from simbench.pipelines.run import run_scenario
 from simbench.scenario import load_scenario
 
 

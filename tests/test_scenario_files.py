@@ -78,7 +78,7 @@ def test_cli_exits_2_with_one_line_and_writes_nothing(tmp_path):
 
 def test_interrupted_render_leaves_nothing_half_written(tmp_path, monkeypatch):
     """A failure mid-render removes the partial directory and keeps an older output intact."""
-    from simbench import rendering
+    from simbench.stage import rendering
 
     from simbench.output_dir import MARKER, OutputMarker
 

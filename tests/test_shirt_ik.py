@@ -12,7 +12,7 @@ from mocap.shirt.ik import Constraints, IKPriors, ShirtIK, train_priors
 from mocap.shirt.shirt_model import UPPER_NV
 from simbench.render.camera import intrinsics_from_fov, look_at_rotation
 from simbench.scenes.anthropometry import BodyParams
-from simbench.shirt_db import shirt_model
+from simbench.pipelines.shirt_database import shirt_model
 
 
 def _camera(name: str, position) -> Camera:

@@ -15,7 +15,7 @@ from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 from simbench.scenes.anthropometry import BodyParams
 from simbench.scenes.humanoid import humanoid_mjcf, joint_ranges
-from simbench.shirt_db import shirt_model
+from simbench.pipelines.shirt_database import shirt_model
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from simbench.run import run_scenario
+from simbench.pipelines.run import run_scenario
 from simbench.scenario import load_scenario
 
 

@@ -9,7 +9,7 @@ from mocap.errors import InputFileError
 from mocap.shirt.histogram_search import HistogramSearchParams, naive_search, search_shirt
 from mocap.shirt.pose_database import PoseDatabase, blend_poses, blend_weights, encode_tiny, tiny_id_map
 from simbench.scenes.anthropometry import BodyParams
-from simbench.shirt_db import PoseSampling, build_database
+from simbench.pipelines.shirt_database import PoseSampling, build_database
 
 _COLOURS = np.array([[200, 30, 30], [30, 170, 40], [30, 50, 200], [220, 200, 30], [30, 190, 200], [200, 30, 150],
                      [240, 120, 20], [110, 30, 170], [210, 210, 210], [40, 40, 40]], np.uint8)

@@ -8,7 +8,7 @@ shirt.  The pipeline (:mod:`mocap.shirt`) gets only what a user would have:
   user's scribbles on the first frame (it gives the initial white balance);
 * a few frames of the empty scene per camera (for the background model), rendered
   with the subject out of view under the lighting at the start of the take;
-* the pose database (:mod:`simbench.shirt_db`, cached);
+* the pose database (:mod:`simbench.pipelines.shirt_database`, cached);
 * a colour model and IK covariances trained *ahead of time* on different takes:
   three short renders with the same cameras and camera settings, of other motions
   and seeds, under office, tungsten and daylight presets with the cameras
@@ -42,7 +42,7 @@ from simbench.stage.stage import Stage
 from simbench.render import ids as idc
 from simbench.render.frames import Pose, frame_rng
 from simbench.scenario import Scenario
-from simbench.shirt_db import PoseSampling, cache_dir, database_key, default_database_path, ensure_database
+from simbench.pipelines.shirt_database import PoseSampling, cache_dir, database_key, default_database_path, ensure_database
 
 __all__ = [
     "TRAINING_TAKES",

@@ -220,11 +220,11 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
         calibration = gt.calibration()
         calib_report: list[str] = []
         if scenario.calibration_scene is not None:
-            # Calibration session (simbench/calibration_run.py): render the board and wand
+            # Calibration session (simbench/pipelines/calibration.py): render the board and wand
             # pictures, run the calibration tool, score it. Its estimate is in the true
             # world frame without alignment when the scene has a floor view (the floor
             # board defines the world), else rigidly aligned to the true camera centres.
-            from simbench.calibration_run import run_calibration
+            from simbench.pipelines.calibration import run_calibration
 
             t1 = time.perf_counter()
             with stages.run("calibration session"):
@@ -265,8 +265,8 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                     metrics.update(score_markers(gt, capture))
         shirt_report: list[str] = []
         if shirt:
-            # The colour-shirt pipeline of seed 001 (simbench/shirt_run.py).
-            from simbench.shirt_run import run_shirt_capture
+            # The colour-shirt pipeline of seed 001 (simbench/pipelines/shirt.py).
+            from simbench.pipelines.shirt import run_shirt_capture
 
             t1 = time.perf_counter()
             with stages.run("shirt pipeline"):
@@ -293,7 +293,7 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                         subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
             with stages.run("contact sheet"):
                 _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
-            from simbench.report import write_run_report
+            from simbench.pipelines.report import write_run_report
 
             with stages.run("report"):
                 write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
