@@ -36,7 +36,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
           set_: list[str] = typer.Option([], "--set", help="override a field in every run, e.g. --set duration_s=0.3"),
           dry_run: bool = typer.Option(False, "--dry-run", help="list the runs and exit")) -> None:
     """Run a grid or random sample of scenarios; record every run in a DuckDB results database."""
-    from simbench.sweep import default_db_path, load_sweep, run_sweep
+    from simbench.sweeps.sweep import default_db_path, load_sweep, run_sweep
 
     sw = load_sweep(sweep_file, extra_set=_overrides(set_))
     db = db or default_db_path(sw)
@@ -81,7 +81,7 @@ def report(db: Path = typer.Argument(..., help="results database written by `sim
            sweep_name: Optional[str] = typer.Option(None, "--sweep", help="only this sweep (default: every sweep in the database)"),
            worst: int = typer.Option(8, "--worst", min=1, help="how many worst runs to list")) -> None:
     """HTML and Markdown report of a sweep: each metric against each factor, heatmaps, trackers, worst runs."""
-    from simbench.sweep_report import write_sweep_report
+    from simbench.sweeps.report import write_sweep_report
 
     md = write_sweep_report(db, out, sweep=sweep_name, n_worst=worst)
     console.print(f"wrote {md} and {md.with_suffix('.html')}", highlight=False, markup=False)
@@ -104,7 +104,7 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
 
     Exit codes: 0 every metric within tolerance; 1 a metric regressed, is missing, or has no tolerance; 2 a bad command line, suites file or baseline (one line, nothing run); 3 a scenario could not run (whether or not others regressed).
     """
-    from simbench import regression as rg
+    from simbench.sweeps import regression as rg
 
     suites = rg.load_suites(suites_file)
     s = suites.get(suite)
@@ -157,7 +157,7 @@ def baseline_update(suite: str = typer.Option(..., "--suite", help="suite name i
                     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1),
                     scheduler: Optional[str] = typer.Option(None, "--scheduler")) -> None:
     """Run a suite and rewrite its baseline from the results (failed runs abort the update)."""
-    from simbench import regression as rg
+    from simbench.sweeps import regression as rg
 
     suites = rg.load_suites(suites_file)
     suites.get(suite)

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from simbench import regression as rg
+from simbench.sweeps import regression as rg
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.results_db import RunRecord
+from simbench.sweeps.results_db import RunRecord
 
 PATTERNS = [
     ("markers.rmse_mm", rg.Tolerance(worse="higher", abs=0.25, rel=0.10)),

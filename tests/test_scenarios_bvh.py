@@ -13,7 +13,7 @@ import pytest
 from mocap.errors import InputFileError
 from simbench.stage.stage import body_params, make_scenario_motion
 from simbench.errors import ScenarioError
-from simbench.regression import load_suites
+from simbench.sweeps.regression import load_suites
 from simbench.render.camera import cameras_from_scenario
 from simbench.scenario import load_scenario
 from simbench.scenes.bvh import load_bvh, retarget_bvh, retarget_bvh_keys

@@ -13,8 +13,8 @@ import pyarrow as pa
 import pytest
 
 from simbench.errors import SimbenchInputError
-from simbench.results_db import ResultsDB, RunRecord
-from simbench.sweep_report import write_sweep_report
+from simbench.sweeps.results_db import ResultsDB, RunRecord
+from simbench.sweeps.report import write_sweep_report
 
 LIGHT = ["office_fluorescent", "dim_gym"]
 BLUR = ["off", "long"]

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from simbench.errors import SimbenchInputError
-from simbench.results_db import ResultsDB
-from simbench.sweep import load_sweep, run_sweep
-from simbench.sweep_report import write_sweep_report
+from simbench.sweeps.results_db import ResultsDB
+from simbench.sweeps.sweep import load_sweep, run_sweep
+from simbench.sweeps.report import write_sweep_report
 
 QUICKSTART = Path("scenarios/quickstart.toml").resolve()
 

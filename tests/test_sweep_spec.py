@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from simbench.cli import app
 from simbench.errors import ScenarioError
-from simbench.sweep import load_sweep, run_id_for
+from simbench.sweeps.sweep import load_sweep, run_id_for
 
 QUICKSTART = Path("scenarios/quickstart.toml").resolve()
 SHIPPED = sorted(Path("scenarios/sweeps").glob("*.toml"))

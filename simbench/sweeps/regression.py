@@ -44,9 +44,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
+from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
 from simbench.scenario import load_scenario, validation_error_to_scenario_error
-from simbench.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
+from simbench.sweeps.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
 WORSE = ("higher", "lower", "either")
 

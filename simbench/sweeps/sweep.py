@@ -37,7 +37,7 @@ context) on a local process pool, or on a Dask distributed cluster
 (``scheduler="tcp://HOST:PORT"``; workers should run one thread each, e.g.
 ``dask worker tcp://HOST:PORT --nthreads 1``, and see the same file system for run
 outputs). A run that raises is recorded as failed with its error and the sweep goes
-on. Results are stored by :mod:`simbench.results_db`.
+on. Results are stored by :mod:`simbench.sweeps.results_db`.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
+from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
 from simbench.scenario import Scenario, load_scenario, validation_error_to_scenario_error
 
 VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
@@ -598,7 +598,7 @@ def run_sweep(sweep: Sweep, db_path: str | Path, workers: int | None = None, sch
     result is stored with status ok are skipped; failed runs are run again.
 
     Several sweeps on one database folder split the work: each run is claimed
-    (:class:`~simbench.results_db.RunClaims`) just before it starts; a run another live
+    (:class:`~simbench.sweeps.results_db.RunClaims`) just before it starts; a run another live
     process holds, or whose result another process stored since this sweep started, is
     counted as skipped.
     """

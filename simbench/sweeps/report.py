@@ -1,6 +1,6 @@
 """``simbench report DB --out DIR``: HTML and Markdown report of a sweep.
 
-Reads the results database written by :mod:`simbench.sweep` and writes
+Reads the results database written by :mod:`simbench.sweeps.sweep` and writes
 ``report.md``, ``report.html`` and ``plots/*.png``:
 
 * every metric against every swept factor (each run a dot, the mean a line);
@@ -31,7 +31,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from simbench.errors import SimbenchInputError
-from simbench.results_db import STATUS_OK, ResultsDB
+from simbench.sweeps.results_db import STATUS_OK, ResultsDB
 
 # Metrics shown first and used for heatmaps, tracker plots and the worst-runs ranking,
 # with the direction that is worse.
