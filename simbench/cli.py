@@ -109,7 +109,7 @@ def list_things() -> None:
 @user_errors
 def bench_render(frames: int = typer.Option(60, help="frames per measurement")) -> None:
     """Frames per second of the renderer, with mujoco.Renderer on the same scene as reference."""
-    from simbench.benchmarks import run_render_benchmark
+    from simbench.benchmarks.render import run_render_benchmark
 
     run_render_benchmark(n_frames=frames)
 
@@ -136,7 +136,7 @@ def bench_pipeline(frames: int = typer.Option(30, help="frames of the scenario r
                    passes: int = typer.Option(3, help="passes per measurement (the fastest is kept)")) -> None:
     """Marker pipeline cost per stage per multi-camera frame on one core, with a threshold +
     cv2.connectedComponentsWithStats pass on the same images as reference."""
-    from simbench.pipeline_benchmark import run_pipeline_benchmark
+    from simbench.benchmarks.pipeline import run_pipeline_benchmark
 
     print(run_pipeline_benchmark(n_frames=frames, scenario_path=str(scenario), passes=passes).table())
 

@@ -277,6 +277,6 @@ def bench_shirt_command(
         if scenario is not None:
             args += ["--scenario", str(scenario)]
         raise typer.Exit(subprocess.run(args, env={**os.environ, **one_core}).returncode)
-    from simbench.pipelines.shirt import run_shirt_benchmark
+    from simbench.benchmarks.shirt import run_shirt_benchmark
 
     user_errors(run_shirt_benchmark)(n_frames=frames, scenario_path=str(scenario) if scenario else None)

@@ -69,7 +69,7 @@ def _best_ms(fn, passes: int) -> float:
 def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/quickstart.toml", passes: int = 3,
                            progress=None) -> PipelineBenchmark:
     """Render ``n_frames`` of the scenario, then time every stage on them (see the module doc)."""
-    from simbench.benchmarks import _one_core
+    from simbench.benchmarks.render import _one_core
 
     _one_core()
     from mocap.detection import DetectionParams, detect_markers
