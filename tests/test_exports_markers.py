@@ -194,3 +194,23 @@ def test_csv_columns_and_round_trip(traj, tmp_path):
     np.testing.assert_allclose(back.xyz[~gaps], traj.xyz[~gaps], atol=1e-8)
     np.testing.assert_array_equal(back.filled, traj.filled)
     np.testing.assert_allclose(back.times, traj.times, atol=1e-6)
+
+
+def test_c3d_is_written_in_a_process_that_loaded_the_shirt_pipeline_first(tmp_path):
+    """faiss (the shirt's pose database) and ezc3d share SWIG's type table: loaded first,
+    faiss owned std::vector<size_t> and every C3D write of the process failed."""
+    import subprocess
+    import sys
+
+    code = (
+        "import mocap.shirt.pose_database\n"
+        "import numpy as np\n"
+        "from mocap.exports import read_c3d, write_c3d\n"
+        "from mocap.types import Trajectories\n"
+        "xyz = np.arange(4 * 2 * 3, dtype=float).reshape(4, 2, 3) / 100.0\n"
+        f"path = write_c3d({str(tmp_path / 'm.c3d')!r}, Trajectories(['a', 'b'], xyz, np.arange(4) / 100.0))\n"
+        "back = read_c3d(path)\n"
+        "assert back.labels == ['a', 'b'] and np.allclose(back.xyz, xyz, atol=1e-6), back.xyz\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]

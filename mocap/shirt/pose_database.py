@@ -34,6 +34,11 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+# ezc3d before faiss: the two SWIG modules share SWIG's runtime type table, and whichever
+# loads first owns the converter of std::vector<size_t>. With faiss first, ezc3d's
+# Parameter.set rejects its own dimension vectors and every C3D write in the process fails
+# (a sweep worker that ran a shirt scenario, then a marker scenario).
+import ezc3d  # noqa: F401
 import faiss
 import numba
 import numpy as np
