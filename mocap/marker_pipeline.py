@@ -22,7 +22,9 @@ from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, normali
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
-from mocap.model_labelling import ClusterMarkerModel, ModelLabellingParams, PointLabels, SkeletonMarkerModel, label_points
+from mocap.cluster_labelling import ClusterMarkerModel
+from mocap.model_labelling import ModelLabellingParams, PointLabels, label_points
+from mocap.skeleton_labelling import SkeletonMarkerModel
 from mocap.reassociation import ReassociationParams, reassociate
 from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.swap_repair import SwapRepairParams, find_jumps, repair_swaps

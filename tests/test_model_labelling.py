@@ -22,7 +22,8 @@ from mocap.correspondence import reconstruct_unlabelled
 from mocap.exports import read_c3d
 from mocap.labelling import LabelTemplate
 from mocap.marker_pipeline import MarkerPipelineParams, capture_from_detections
-from mocap.model_labelling import ClusterMarkerModel, assign_to_predictions
+from mocap.cluster_labelling import ClusterMarkerModel
+from mocap.model_labelling import assign_to_predictions
 from mocap.reconstruction import ReconstructionParams
 from mocap.types import Detections
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.labelling import LabelTemplate
-from mocap.model_labelling import ClusterMarkerModel
+from mocap.cluster_labelling import ClusterMarkerModel
 
 __all__ = ["CaptureClip", "CaptureReference"]
 

@@ -1,0 +1,152 @@
+"""Markers predicted from their most rigid neighbours: a labelling model for captures without a
+skeleton (:func:`mocap.model_labelling.label_points`), learned from a labelled trial."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from mocap.model_labelling import assign_to_predictions, constant_velocity, kabsch, match_rigid_cluster, point_positions
+
+__all__ = ["ClusterMarkerModel"]
+
+
+class ClusterMarkerModel:
+    """Markers predicted from their most rigid neighbours, learned from a labelled trial.
+
+    For captures without a skeleton: a *subject calibration* as commercial systems make it from a
+    labelled range-of-motion trial. For every marker, the ``n_neighbours`` markers whose distance
+    to it varies least over the trial are its neighbours; the marker is predicted from their
+    current positions by the rigid (Kabsch) motion that takes their reference positions there,
+    with at least three of them seen. Its gate is ``min_gate_m`` plus three times that
+    prediction's RMS error over the trial, so a marker on soft tissue gets a wider gate than one
+    on a rigid cluster.
+
+    Parameters
+    ----------
+    labels : M names
+    xyz : (F, M, 3) float
+        The labelled trial, metres, NaN where a marker was not seen.
+    """
+
+    def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01) -> None:
+        xyz = np.asarray(xyz, dtype=np.float64)
+        F, M, _ = xyz.shape
+        if M != len(labels):
+            raise ValueError(f"ClusterMarkerModel: {len(labels)} labels for {M} trajectories")
+        self.labels = list(labels)
+        self.min_gate_m = min_gate_m
+        ok = np.isfinite(xyz).all(axis=2)
+        step = max(1, F // 400)  # a few hundred frames are plenty for the statistics
+        X, okX = xyz[::step], ok[::step]
+        D = np.linalg.norm(X[:, :, None] - X[:, None], axis=3)                # (F', M, M)
+        both = okX[:, :, None] & okX[:, None, :]
+        cnt = both.sum(axis=0)
+        Dz = np.where(both, D, 0.0)
+        mean = Dz.sum(axis=0) / np.maximum(cnt, 1)
+        var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
+        std = np.where(cnt >= max(3, len(X) // 5), np.sqrt(var), np.inf)
+        np.fill_diagonal(std, np.inf)
+        self.neighbours = np.argsort(std, axis=1)[:, :n_neighbours]          # (M, k)
+        self.neighbour_std_m = np.take_along_axis(std, self.neighbours, axis=1)
+        # Reference: for each marker, a frame where it and all its neighbours are seen.
+        self.ref_self = np.full((M, 3), np.nan)
+        self.ref_nb = np.full((M, n_neighbours, 3), np.nan)
+        self.gate_m = np.full(M, np.inf)
+        for m in range(M):
+            nb = self.neighbours[m]
+            frames = np.flatnonzero(ok[:, m] & ok[:, nb].all(axis=1))
+            if frames.size == 0 or not np.isfinite(self.neighbour_std_m[m]).all():
+                continue
+            f0 = frames[frames.size // 2]
+            self.ref_self[m], self.ref_nb[m] = xyz[f0, m], xyz[f0, nb]
+            errs = []
+            for f in frames[:: max(1, frames.size // 100)]:
+                R, t = kabsch(self.ref_nb[m], xyz[f, nb])
+                errs.append(np.linalg.norm(self.ref_self[m] @ R.T + t - xyz[f, m]))
+            self.gate_m[m] = min_gate_m + 3.0 * float(np.sqrt(np.mean(np.square(errs))))
+
+    def markers(self, state: np.ndarray) -> np.ndarray:
+        return state
+
+    def predict(self, pos: np.ndarray) -> np.ndarray:
+        """Every marker ``(M, 3)`` from its neighbours' labelled positions ``pos`` (NaN: unseen);
+        NaN where fewer than three neighbours are seen."""
+        out = np.full_like(pos, np.nan)
+        seen = np.isfinite(pos).all(axis=1)
+        for m in range(len(self.labels)):
+            nb = self.neighbours[m]
+            use = seen[nb] & np.isfinite(self.ref_nb[m]).all(axis=1)
+            if use.sum() < 3:
+                continue
+            R, t = kabsch(self.ref_nb[m][use], pos[nb[use]])
+            out[m] = self.ref_self[m] @ R.T + t
+        return out
+
+    def _grow(self, idx: np.ndarray, points: np.ndarray, allowed: np.ndarray, rounds: int = 4) -> np.ndarray:
+        """Label more points from the labelled ones' predictions, until nothing changes."""
+        idx = idx.copy()
+        for _ in range(rounds):
+            pos = point_positions(points, idx)
+            pred = self.predict(pos)
+            free = (idx < 0) & np.isfinite(pred).all(axis=1)
+            if not free.any():
+                break
+            taken = allowed.copy()
+            taken[idx[idx >= 0]] = False
+            more = assign_to_predictions(np.where(free[:, None], pred, np.nan), points, self.gate_m, allowed=taken)
+            if not (more >= 0).any():
+                break
+            idx = np.where(more >= 0, more, idx)
+        return idx
+
+    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
+        M = len(self.labels)
+        idx = np.full(M, -1, dtype=np.intp)
+        # Seeds: groups (a marker and its neighbours), most rigid first, each matched among the
+        # points not yet labelled; every seed then grows through the neighbours' predictions.
+        rigidity = np.nanmax(np.where(np.isfinite(self.neighbour_std_m), self.neighbour_std_m, np.inf), axis=1)
+        for m in np.argsort(rigidity):
+            if not np.isfinite(rigidity[m]):
+                break
+            if idx[m] >= 0:
+                continue
+            group = np.concatenate([[m], self.neighbours[m]])
+            free = np.ones(len(points), bool)
+            free[idx[idx >= 0]] = False
+            local = np.vstack([self.ref_self[m], self.ref_nb[m]])
+            tol = max(0.005, 3.0 * float(np.nanmax(self.neighbour_std_m[m])))
+            matches = match_rigid_cluster(local, points, tol, max_matches=2, allowed=free)
+            if not matches or int((matches[0][2] >= 0).sum()) < 4:
+                continue
+            if len(matches) > 1 and int((matches[1][2] >= 0).sum()) == int((matches[0][2] >= 0).sum()) \
+                    and matches[1][3] < 1.5 * matches[0][3]:
+                continue  # two places fit about as well (e.g. a left/right pair): not a seed
+            mi = matches[0][2]
+            for j, g in enumerate(group):
+                if mi[j] >= 0 and idx[g] < 0 and free[mi[j]]:
+                    idx[g] = mi[j]
+            idx = self._grow(idx, points, np.ones(len(points), bool), rounds=8)
+        n = int((idx >= 0).sum())
+        if n < 3:
+            return None, idx, 0.0
+        pos = point_positions(points, idx)
+        state = np.where(np.isfinite(pos), pos, self.predict(pos))
+        return state, idx, float(n)
+
+    def track(self, points: np.ndarray, trusted: np.ndarray, state: np.ndarray, previous: Sequence[np.ndarray],
+              gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
+        pred = constant_velocity(state, previous)
+        idx = assign_to_predictions(pred, points, gates[0], allowed=trusted)
+        # Veto: a label whose point disagrees with its neighbours' prediction loses it.
+        pos = point_positions(points, idx)
+        model = self.predict(pos)
+        bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > self.gate_m)
+        idx[bad] = -1
+        idx = self._grow(idx, points, np.ones(len(points), bool))
+        pos = point_positions(points, idx)
+        model = self.predict(pos)
+        seen = idx >= 0
+        state = np.where(seen[:, None], pos, np.where(np.isfinite(model), model, pred))
+        return state, idx, float(seen.sum())
