@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from mocap.detection import DetectionParams, detect_markers
 from mocap.types import Detections
 from simbench.stage.build import build_stage
-from simbench.cli_common import parse_overrides
+from simbench.scenario import parse_overrides
 from simbench.render.ids import BACKGROUND, BODY, CLUTTER, MARKER_BASE, SET
 from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario

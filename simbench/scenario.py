@@ -18,7 +18,7 @@ from typing import Annotated, Literal, Union
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_serializer, model_validator
 
-from simbench.errors import ScenarioError
+from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.scenes.humanoid import BODY_NAMES
 
 Vec3 = tuple[float, float, float]
@@ -438,6 +438,21 @@ def validation_error_to_scenario_error(path: Path, exc: ValidationError) -> Scen
         value = "{...}"
     extra = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
     return ScenarioError(path, loc, value, msg + extra)
+
+
+def parse_overrides(items: list[str]) -> dict[str, object]:
+    """``FIELD=VALUE`` strings (``--set`` options) to a dict for :func:`load_scenario`'s ``overrides``;
+    values parsed as TOML (numbers, strings, booleans, arrays), else kept as the string."""
+    out: dict[str, object] = {}
+    for item in items:
+        if "=" not in item:
+            raise SimbenchInputError(f"--set {item!r}: expected FIELD=VALUE, e.g. sensor.exposure_ms=20")
+        key, value = item.split("=", 1)
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = value
+    return out
 
 
 def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) -> Scenario:

@@ -41,7 +41,7 @@ def _partials(parent: Path) -> list[Path]:
 
 def _tiny_run(out: Path) -> None:
     """A tiny run in this process (no interpreter start-up to pay for)."""
-    from simbench.cli_common import parse_overrides
+    from simbench.scenario import parse_overrides
     from simbench.pipelines.run import run_scenario
     from simbench.scenario import load_scenario
 

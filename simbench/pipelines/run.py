@@ -8,7 +8,7 @@ T-pose label template and the subject model; never the ground truth.
 A run never loses its metrics to a late failure: once the frames are rendered, a stage
 that raises is recorded (``RunResult.failures``, ``metrics.json``'s ``failed_stages``,
 the top of ``report.md``) and the run's outputs are still moved into place;
-``simbench run`` then exits with code 3 (``simbench.cli_common.EXIT_STAGE_FAILED``).
+``simbench run`` then exits with code 3 (``simbench.cli.common.EXIT_STAGE_FAILED``).
 """
 
 from __future__ import annotations
@@ -26,19 +26,24 @@ import mujoco
 import numpy as np
 
 from eval import marker_metrics, skeleton_metrics
-from mocap.labelling import LabelTemplate, save_template
-from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
 from mocap.detection import DetectionParams
 from mocap.errors import MocapInputError
+from mocap.labelling import LabelTemplate, save_template
+from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
 from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
-from simbench.stage.build import build_stage
-from simbench.stage.stage import Stage
+from mocap.trackers import get_tracker
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
-from simbench.stage.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
+from simbench.pipelines.calibration import run_calibration
+from simbench.pipelines.report import write_run_report
+from simbench.pipelines.shirt import run_shirt_capture
+from simbench.pipelines.shirt_database import ProgressFactory
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
+from simbench.stage.build import build_stage
+from simbench.stage.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
+from simbench.stage.stage import Stage
 
 
 @dataclass(frozen=True)
@@ -165,13 +170,12 @@ def score_markers(gt, capture: MarkerCapture) -> dict[str, float]:
 def preflight(scenario: Scenario) -> None:
     """Settings only the pipeline reads, checked before anything renders (a user error
     found after rendering would be a failed stage, exit 3, rather than exit 2)."""
-    from mocap.trackers import get_tracker
-
     if scenario.subject.markers != "none":
         get_tracker(scenario.markers_pipeline.tracker)  # TrackerNotFoundError names the known ones
 
 
-def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=None, write_outputs: bool = True) -> RunResult:
+def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=None, write_outputs: bool = True,
+                 progress_factory: ProgressFactory | None = None) -> RunResult:
     """Render, capture and score one scenario; write metrics.json, report and exports to ``out``.
 
     ``out`` is replaced only if it is an earlier bench output or an empty folder
@@ -224,8 +228,6 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
             # pictures, run the calibration tool, score it. Its estimate is in the true
             # world frame without alignment when the scene has a floor view (the floor
             # board defines the world), else rigidly aligned to the true camera centres.
-            from simbench.pipelines.calibration import run_calibration
-
             t1 = time.perf_counter()
             with stages.run("calibration session"):
                 calib_metrics, calib_report, estimated = run_calibration(bench, tmp)
@@ -266,11 +268,9 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
         shirt_report: list[str] = []
         if shirt:
             # The colour-shirt pipeline of seed 001 (simbench/pipelines/shirt.py).
-            from simbench.pipelines.shirt import run_shirt_capture
-
             t1 = time.perf_counter()
             with stages.run("shirt pipeline"):
-                shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp)
+                shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp, progress_factory=progress_factory)
                 metrics.update(shirt_metrics)
             timings["shirt_pipeline_s"] = time.perf_counter() - t1
         metrics["run.frames"] = gt.n_frames
@@ -293,8 +293,6 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
                         subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
             with stages.run("contact sheet"):
                 _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
-            from simbench.pipelines.report import write_run_report
-
             with stages.run("report"):
                 write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
                                  calibration=calibration)

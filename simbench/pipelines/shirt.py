@@ -42,7 +42,8 @@ from simbench.stage.stage import Stage
 from simbench.render import ids as idc
 from simbench.render.frames import Pose, frame_rng
 from simbench.scenario import Scenario
-from simbench.pipelines.shirt_database import PoseSampling, cache_dir, database_key, default_database_path, ensure_database
+from simbench.pipelines.shirt_database import (PoseSampling, ProgressFactory, cache_dir, database_key, default_database_path,
+                                               ensure_database)
 
 __all__ = [
     "TRAINING_TAKES",
@@ -139,11 +140,13 @@ class ShirtSession:
         return ShirtTracker(self.db, t.colour_model, t.priors, self.calibration, self.W0, params, self.empty, self.other)
 
 
-def start_session(bench: Stage, frames: np.ndarray, gt, echo=print) -> ShirtSession:
-    """Database and training (built or loaded from the cache) and the session inputs of a take."""
+def start_session(bench: Stage, frames: np.ndarray, gt, echo=print,
+                  progress_factory: ProgressFactory | None = None) -> ShirtSession:
+    """Database and training (built or loaded from the cache) and the session inputs of a take;
+    ``progress_factory`` shows a database build's progress."""
     cfg = bench.scenario.shirt_pipeline
     sampling = PoseSampling(n_poses=cfg.database_size)
-    db = ensure_database(bench.params, sampling, cfg.database, echo=echo)
+    db = ensure_database(bench.params, sampling, cfg.database, echo=echo, progress_factory=progress_factory)
     db.meta.setdefault("key", database_key(bench.params, sampling))
     training = ensure_training(bench.scenario, db, cfg.training_frames, echo=echo)
     W0, other, empty = session_inputs(bench, frames, gt, training.colour_model, np.asarray(db.geometry.patch_colour))
@@ -386,7 +389,8 @@ def _plots(out: Path, times: np.ndarray, gt_angle: np.ndarray, full_angle: np.nd
     return names
 
 
-def run_shirt_capture(bench: Stage, frames: np.ndarray, gt, out_dir: Path | None, echo=print) -> tuple[dict, list[str]]:
+def run_shirt_capture(bench: Stage, frames: np.ndarray, gt, out_dir: Path | None, echo=print,
+                      progress_factory: ProgressFactory | None = None) -> tuple[dict, list[str]]:
     """The hook of ``simbench run``: full method and baseline on the same frames, scored.
 
     Parameters
@@ -407,7 +411,7 @@ def run_shirt_capture(bench: Stage, frames: np.ndarray, gt, out_dir: Path | None
     """
     sc = bench.scenario
     cfg = sc.shirt_pipeline
-    session = start_session(bench, frames, gt, echo=echo)
+    session = start_session(bench, frames, gt, echo=echo, progress_factory=progress_factory)
     db, training = session.db, session.training
     model = ShirtModel(db.mjcf_text, db.geometry)
     pc = model.patch_colour

@@ -1,4 +1,4 @@
-"""``simbench shirt build-db``: the colour-shirt pipeline's pose database, made from the bench's humanoid.
+"""The colour-shirt pipeline's pose database, made from the bench's humanoid.
 
 The database (:class:`mocap.shirt.pose_database.PoseDatabase`) holds upper-body poses
 sampled uniformly over the configurations of the humanoid (each estimated hinge
@@ -16,7 +16,8 @@ entries and run-time renders of a pose are the same pixels.
 
 Default location: ``$SIMBENCH_CACHE_DIR`` or ``~/.cache/simbench``, file
 ``shirt_db_<hash>.npz`` where the hash covers the subject, the size, the ranges and
-the seed; :func:`ensure_database` builds it (with a progress bar) when missing.
+the seed; :func:`ensure_database` builds it when missing. ``simbench shirt build-db``
+(:mod:`simbench.cli.shirt`) builds one on request.
 """
 
 from __future__ import annotations
@@ -27,10 +28,9 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Optional
+from typing import TYPE_CHECKING, Callable, ContextManager
 
 import numpy as np
-import typer
 
 from simbench.errors import SimbenchInputError
 from simbench.scenes.anthropometry import BodyParams
@@ -51,8 +51,7 @@ __all__ = [
     "cache_dir",
     "default_database_path",
     "ensure_database",
-    "shirt_app",
-    "bench_shirt_command",
+    "ProgressFactory",
 ]
 
 OCCLUDER_BODIES: tuple[str, ...] = ("pelvis", "head", "hand_l", "hand_r")
@@ -65,6 +64,10 @@ its up (+Z) to image up (-y), its front (+X) towards the viewer (-z)."""
 _RENDER_SIZE = 96  # px: orthographic render, then normalised to 40x40
 _RENDER_MARGIN = 1.15
 _BATCH = 48  # poses per rasteriser call
+
+#: ``factory(description, total) -> (context manager, advance)``: a progress display the
+#: caller (the command line) supplies; ``advance(n)`` reports ``n`` more units done.
+ProgressFactory = Callable[[str, int], tuple[ContextManager, Callable[[int], None]]]
 
 
 @dataclass(frozen=True)
@@ -206,11 +209,11 @@ def default_database_path(params: BodyParams, sampling: PoseSampling) -> Path:
 
 
 def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path | None = None, echo=print,
-                    progress_factory=None) -> "PoseDatabase":
+                    progress_factory: ProgressFactory | None = None) -> "PoseDatabase":
     """Load the database at ``path`` (default: the cache), building it first when missing.
 
-    ``progress_factory(description, total)`` returns ``(context manager, advance)``
-    (e.g. :func:`simbench.cli.progress_bar`); without it a rich bar is made here.
+    ``progress_factory`` shows the build's progress (the command line passes its progress
+    bar); without it the build reports only its start and end through ``echo``.
     """
     from mocap.shirt.pose_database import PoseDatabase
 
@@ -219,64 +222,11 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
         return PoseDatabase.load(path)
     echo(f"shirt pose database {path} missing: building {sampling.n_poses} poses")
     if progress_factory is None:
-        from simbench.cli import progress_bar as progress_factory
-    prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
-    with prog:
-        db = build_database(params, sampling, progress=advance)
+        db = build_database(params, sampling)
+    else:
+        prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
+        with prog:
+            db = build_database(params, sampling, progress=advance)
     db.save(path)
     echo(f"wrote {path} ({len(db)} poses)")
     return db
-
-
-# --------------------------------------------------------------------------- CLI
-shirt_app = typer.Typer(no_args_is_help=True, help="The colour-shirt pipeline's pose database.")
-
-
-@shirt_app.command("build-db")
-def build_db_command(
-    out: Optional[Path] = typer.Option(None, "--out", help="database file (default: the cache, shirt_db_<hash>.npz)"),
-    n_poses: int = typer.Option(80_000, "--poses", help="number of poses"),
-    height_m: float = typer.Option(1.75, "--height", help="subject height (m)"),
-    yaw_deg: float = typer.Option(80.0, "--yaw", help="root yaw range +- (deg) around facing the camera"),
-    pitch_deg: float = typer.Option(25.0, "--pitch", help="root pitch range +- (deg)"),
-    roll_deg: float = typer.Option(20.0, "--roll", help="root roll range +- (deg)"),
-    seed: int = typer.Option(0, "--seed"),
-) -> None:
-    """Sample, rasterise and index upper-body poses of the humanoid (40x40 id maps)."""
-    from simbench.cli import console, progress_bar, user_errors
-
-    @user_errors
-    def run() -> None:
-        sampling = PoseSampling(n_poses, yaw_deg, pitch_deg, roll_deg, seed)
-        params = BodyParams(height_m=height_m)
-        path = out or default_database_path(params, sampling)
-        prog, advance = progress_bar(f"shirt database ({n_poses} poses)", n_poses)
-        t0 = time.perf_counter()
-        with prog:
-            db = build_database(params, sampling, progress=advance)
-        db.save(path)
-        console.print(f"wrote {path}: {len(db)} poses in {time.perf_counter() - t0:.0f} s")
-
-    run()
-
-
-def bench_shirt_command(
-    frames: int = typer.Option(20, "--frames", help="frames timed (after 3 warm-up frames)"),
-    scenario: Optional[Path] = typer.Option(None, "--scenario", help="shirt scenario (default scenarios/shirt_office.toml)"),
-) -> None:
-    """ms per 2-camera frame of the colour-shirt pipeline per stage, one core, with references."""
-    import subprocess
-    import sys
-
-    from simbench.cli import user_errors
-
-    one_core = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "LP_NUM_THREADS": "1"}
-    if any(os.environ.get(k) != v for k, v in one_core.items()):
-        # BLAS reads its thread count when it is loaded: measure in a fresh process
-        args = [sys.executable, "-m", "simbench.cli", "bench", "shirt", "--frames", str(frames)]
-        if scenario is not None:
-            args += ["--scenario", str(scenario)]
-        raise typer.Exit(subprocess.run(args, env={**os.environ, **one_core}).returncode)
-    from simbench.benchmarks.shirt import run_shirt_benchmark
-
-    user_errors(run_shirt_benchmark)(n_frames=frames, scenario_path=str(scenario) if scenario else None)

@@ -1,6 +1,8 @@
 """``simbench sweep``, ``simbench report``, ``simbench check`` and ``simbench baseline update``.
 
-Registered on the main app by :func:`register` (see the end of :mod:`simbench.cli`).
+Registered on the main app by :func:`register` (see the end of :mod:`simbench.cli.app`).
+Each command imports :mod:`simbench.sweeps` when it runs (DuckDB, pandas: the CLI's
+``--help`` stays fast).
 """
 
 from __future__ import annotations
@@ -15,10 +17,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from simbench.cli_common import console, parse_overrides, user_errors
-
-_user_errors = user_errors
-_overrides = parse_overrides
+from simbench.cli.common import console, user_errors
+from simbench.scenario import parse_overrides
 
 
 def _runs_progress(description: str):
@@ -38,7 +38,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
     """Run a grid or random sample of scenarios; record every run in a DuckDB results database."""
     from simbench.sweeps.sweep import default_db_path, load_sweep, run_sweep
 
-    sw = load_sweep(sweep_file, extra_set=_overrides(set_))
+    sw = load_sweep(sweep_file, extra_set=parse_overrides(set_))
     db = db or default_db_path(sw)
     dup = f" ({sw.duplicates} duplicate samples dropped)" if sw.duplicates else ""
     console.print(f"sweep [bold]{escape(sw.name)}[/]: {len(sw.runs)} runs{dup} -> {escape(str(db))}", highlight=False)
@@ -129,9 +129,9 @@ def _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler, 
     resolved raise (``strict``, for baselines) or become failed records (``check``)."""
     out_dir = (out or Path("out") / "check" / suite) if outputs else None
     if strict:
-        runs, unrunnable = suites.runs(suite, only=only, extra_set=_overrides(set_)), {}
+        runs, unrunnable = suites.runs(suite, only=only, extra_set=parse_overrides(set_)), {}
     else:
-        runs, unrunnable = suites.resolve(suite, only=only, extra_set=_overrides(set_))
+        runs, unrunnable = suites.resolve(suite, only=only, extra_set=parse_overrides(set_))
     prog = _runs_progress(f"suite {suite}")
     task = prog.add_task(f"suite {suite}", total=len(runs) + len(unrunnable), failed=len(unrunnable), skipped=0,
                          completed=len(unrunnable))
@@ -150,7 +150,7 @@ baseline_app = typer.Typer(no_args_is_help=True, help="Baselines of regression s
 
 
 @baseline_app.command("update")
-@_user_errors
+@user_errors
 def baseline_update(suite: str = typer.Option(..., "--suite", help="suite name in the suites file"),
                     baseline: Optional[Path] = typer.Option(None, "--baseline", help="baseline JSON to write (default scenarios/baselines/<suite>.json)"),
                     suites_file: Path = typer.Option(Path("scenarios/suites.toml"), "--suites", help="suites file"),
@@ -169,8 +169,8 @@ def baseline_update(suite: str = typer.Option(..., "--suite", help="suite name i
 
 def register(app: typer.Typer) -> None:
     """Add the sweep, report, check and baseline commands to the ``simbench`` app."""
-    app.command("sweep")(_user_errors(sweep))
-    app.command("report")(_user_errors(report))
-    app.command("check")(_user_errors(check))
+    app.command("sweep")(user_errors(sweep))
+    app.command("report")(user_errors(report))
+    app.command("check")(user_errors(check))
     app.add_typer(baseline_app, name="baseline")
 

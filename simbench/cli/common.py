@@ -1,0 +1,84 @@
+"""What every ``simbench`` sub-command shares: the error policy, exit codes, signals,
+progress bars, ``--set``.
+
+Exit codes of the ``simbench`` command line:
+
+* 0: done;
+* 1: ``simbench check``: a metric regressed; ``simbench sweep``: some runs failed;
+* 2: an error you can cause (bad scenario field, missing file, no GL, an ``--out`` that
+  is not the bench's to replace): one line naming the file, the field, the value and the
+  fix; nothing written;
+* 3: ``simbench run``: the run finished but a stage failed (its metrics.json and
+  report.md are written and name the stage); ``simbench check``: a scenario could not
+  run (its row says ``error: ...``);
+* 130 / 143: interrupted by SIGINT / SIGTERM; unfinished outputs are removed.
+"""
+
+from __future__ import annotations
+
+import functools
+import signal
+import sys
+from typing import Callable
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.text import Text
+
+from mocap.errors import MocapInputError
+from simbench import interrupts
+from simbench.errors import SimbenchInputError
+
+console = Console(stderr=True)
+
+EXIT_USER_ERROR = 2
+EXIT_STAGE_FAILED = 3  # simbench run: a stage failed after rendering; simbench check: a scenario could not run
+
+
+def print_error(message: str, prefix: str = "error:") -> None:
+    """One ``error: MESSAGE`` line on stderr; MESSAGE is printed literally (no rich markup,
+    so ``[[lighting.lights]]`` in a message stays as written)."""
+    console.print(Text.assemble((prefix, "bold red"), " ", message), soft_wrap=True, highlight=False)
+
+
+def user_errors(fn: Callable) -> Callable:
+    """The user-caused errors of a command (bench or pipeline) become one line on stderr
+    and exit code 2, no traceback (the message names the file, the field and the fix)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except (SimbenchInputError, MocapInputError) as exc:
+            print_error(str(exc))
+            raise typer.Exit(EXIT_USER_ERROR)
+
+    return wrapper
+
+
+def run_app(app: typer.Typer) -> None:
+    """Run the command line with SIGINT and SIGTERM turned into
+    :class:`simbench.interrupts.Interrupted`: one line on stderr, unfinished outputs
+    removed, exit 128 + the signal's number. An exception that a signal turned into
+    something else on its way out (see :mod:`simbench.interrupts`) counts as that signal."""
+    interrupts.install()
+    try:
+        app()
+        interrupts.raise_if_pending()
+    except BaseException as exc:  # click ends even a successful command with SystemExit
+        signum = exc.signum if isinstance(exc, interrupts.Interrupted) else interrupts.pending()
+        if signum is None:
+            raise
+        console.print(f"interrupted by {signal.Signals(signum).name}: stopped; unfinished outputs removed, "
+                      f"earlier outputs left as they were", markup=False, highlight=False, soft_wrap=True)
+        sys.exit(128 + signum)
+
+
+def progress_bar(description: str, total: int):
+    """A rich progress bar on stderr; returns ``(progress, advance)``."""
+    prog = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console)
+    task = prog.add_task(escape(description), total=total)  # a scenario name is shown as written
+    return prog, lambda n=1: prog.advance(task, n)
