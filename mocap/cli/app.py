@@ -2,55 +2,26 @@
 
 Nothing here knows about the simulator: inputs are videos (or images), a calibration
 file and a label template, exactly what a user with real webcams has.
+
+Commands import the pipeline when they run, so ``mocap --help`` stays quick.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import numpy as np
 import typer
-from rich.console import Console
 
-from mocap.errors import InputFileError, MocapInputError
+from mocap.calibration import Calibration
+from mocap.cli import shirt as shirt_commands
+from mocap.cli.common import console, order_videos_by_camera, user_errors
+from mocap.errors import InputFileError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Optical motion capture from webcam videos.")
-console = Console(stderr=True)
-
-
-def exit_on_user_errors(*errors: type[Exception], console: Console = console):
-    """A decorator turning the user-caused ``errors`` of a command into one line on
-    ``console`` and exit code 2 (no traceback: the message names the file, field and fix)."""
-
-    def decorate(fn):
-        @functools.wraps(fn)
-        def wrapper(*args, **kwargs):
-            try:
-                return fn(*args, **kwargs)
-            except errors as exc:
-                console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-                raise typer.Exit(2)
-
-        return wrapper
-
-    return decorate
-
-
-user_errors = exit_on_user_errors(MocapInputError)
-
-
-def order_videos_by_camera(videos: list[Path], camera_names: list[str]) -> list[Path]:
-    """Match video files to calibration cameras by file stem (``cam0.mp4`` -> ``cam0``), else by order."""
-    stems = {v.stem: v for v in videos}
-    if all(n in stems for n in camera_names):
-        return [stems[n] for n in camera_names]
-    if len(videos) != len(camera_names):
-        raise InputFileError(videos[0] if videos else Path("."), f"{len(videos)} videos for {len(camera_names)} calibrated cameras {camera_names}",
-                             "pass one video per camera, named after the camera (e.g. cam0.mp4) or in calibration order")
-    return list(videos)
 
 
 @app.command()
@@ -67,9 +38,6 @@ def markers(
     seed: int = typer.Option(0, "--seed", help="seed of stochastic trackers"),
 ) -> None:
     """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject)."""
-    import cv2
-
-    from mocap.calibration import Calibration
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
     from mocap.marker_pipeline import MarkerPipelineParams, capture_markers, export_capture
@@ -153,8 +121,7 @@ def calibrate(
     console.print("wrote " + ", ".join(str(p) for p in result.written), highlight=False)
 
 
-from mocap import shirt_cli  # noqa: E402  (colour-shirt pipeline, issue 6)
-app.command("shirt")(user_errors(shirt_cli.shirt))
+app.command("shirt")(user_errors(shirt_commands.shirt))
 
 
 def main() -> None:

@@ -17,9 +17,12 @@ import json
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import numpy as np
 import typer
 
+from mocap.calibration import Calibration
+from mocap.cli.common import console, order_videos_by_camera
 from mocap.errors import InputFileError
 
 __all__ = ["shirt", "load_scribbles"]
@@ -27,9 +30,7 @@ __all__ = ["shirt", "load_scribbles"]
 
 def load_scribbles(path: Path, size: tuple[int, int], n_colours: int) -> np.ndarray:
     """Labels ``(H, W)`` int16 from a scribble PNG: colour ids, -1 unlabelled, ``NOT_SHIRT`` for 255."""
-    import cv2
-
-    from mocap.shirt.colour_model import NOT_SHIRT
+    from mocap.shirt.colour_model import NOT_SHIRT  # the shirt pipeline (faiss, Pinocchio) loads on use
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -50,8 +51,6 @@ def load_scribbles(path: Path, size: tuple[int, int], n_colours: int) -> np.ndar
 
 def _read_frames(path: Path, start: int, count: int | None) -> list[np.ndarray]:
     """RGB frames ``(H, W, 3)`` uint8 of a video from frame ``start`` (at most ``count``)."""
-    import cv2
-
     if not path.is_file():
         raise InputFileError(path, "file not found", "pass the path of a video file (e.g. an MP4 written by `simbench render`)")
     cap = cv2.VideoCapture(str(path))
@@ -90,10 +89,7 @@ def shirt(
     seed: int = typer.Option(0, "--seed", help="seed of the not-shirt colour clustering"),
 ) -> None:
     """Track the upper body of a subject wearing the colour shirt; write poses and joint centres."""
-    import cv2
-
-    from mocap.calibration import Calibration
-    from mocap.cli import console, order_videos_by_camera
+    # the shirt pipeline (faiss, Pinocchio) loads when the command runs: `mocap --help` stays quick
     from mocap.shirt.colour_model import ColourModel, train_other_colours
     from mocap.shirt.ik import IKPriors
     from mocap.shirt.pipeline import STAGES, ShirtPipelineParams, ShirtTracker, initial_white_balance
