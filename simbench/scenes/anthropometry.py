@@ -27,6 +27,27 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+#: The humanoid's 16 bodies (``docs/humanoid_spec.md``), root first: the names every part of
+#: the body shares (MJCF, rendered surface, marker placement, ground truth).
+BODY_NAMES: tuple[str, ...] = (
+    "pelvis",
+    "abdomen",
+    "thorax",
+    "head",
+    "upperarm_l",
+    "forearm_l",
+    "hand_l",
+    "upperarm_r",
+    "forearm_r",
+    "hand_r",
+    "thigh_l",
+    "shank_l",
+    "foot_l",
+    "thigh_r",
+    "shank_r",
+    "foot_r",
+)
+
 # --- Winter / Drillis-Contini length fractions of standing height -----------------
 ANKLE_HEIGHT_FRAC = 0.039  # floor -> ankle joint centre
 SHANK_FRAC = 0.246  # ankle -> knee (0.285 - 0.039)

@@ -24,7 +24,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from simbench.scenes.anthropometry import BodyDims, BodyParams, body_dimensions
+from simbench.scenes.anthropometry import BODY_NAMES, BodyDims, BodyParams, body_dimensions
+from simbench.scenes.markers import MARKER_RADIUS_M, marker_set as _marker_set
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import mujoco
@@ -49,25 +50,6 @@ __all__ = [
     "pinocchio_to_mujoco_q",
     "joint_qpos_index",
 ]
-
-BODY_NAMES: tuple[str, ...] = (
-    "pelvis",
-    "abdomen",
-    "thorax",
-    "head",
-    "upperarm_l",
-    "forearm_l",
-    "hand_l",
-    "upperarm_r",
-    "forearm_r",
-    "hand_r",
-    "thigh_l",
-    "shank_l",
-    "foot_l",
-    "thigh_r",
-    "shank_r",
-    "foot_r",
-)
 
 _PARENT = {
     "pelvis": None,
@@ -281,8 +263,6 @@ def humanoid_body_xml(
     bodies = humanoid_bodies(params)
     sites: dict[str, list] = {b.name: [] for b in bodies}
     if marker_set is not None:
-        from simbench.scenes.markers import MARKER_RADIUS_M, marker_set as _marker_set
-
         for m in _marker_set(marker_set, params):
             sites[m.body].append(m)
     children: dict[str | None, list[BodySpec]] = {}

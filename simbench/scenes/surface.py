@@ -19,8 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from simbench.scenes.anthropometry import TORSO_SECTION_EXPONENT, TORSO_SECTIONS, BodyDims, BodyParams, body_dimensions
-from simbench.scenes.humanoid import BODY_NAMES
+from simbench.scenes.anthropometry import BODY_NAMES, TORSO_SECTION_EXPONENT, TORSO_SECTIONS, BodyDims, BodyParams, body_dimensions
 from simbench.scenes.shirt import PATCH_COLOUR, SHIRT_COLOURS_RGB, shirt_face_patch, shirt_row_borders_m
 
 __all__ = [
@@ -51,7 +50,7 @@ class BodyPart:
     Attributes
     ----------
     body : str
-        Body name (:data:`simbench.scenes.humanoid.BODY_NAMES`).
+        Body name (:data:`simbench.scenes.anthropometry.BODY_NAMES`).
     mesh : trimesh.Trimesh
         Closed triangle mesh in the body frame, metres (a concatenation of closed
         pieces; outward normals).
