@@ -45,7 +45,7 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
          f"{n_frames} frames timed after 3 warm-up frames, one core (BLAS, OpenCV, faiss: 1 thread)")
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     gt = seq.ground_truth
-    session = start_session(bench, seq.frames, gt, echo=echo)
+    session = start_session(bench, seq.frames, gt)
     results: dict[str, float] = {}
     per_method = {}
     for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline())):

@@ -43,7 +43,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+import cv2
 import numpy as np
+from matplotlib.figure import Figure
 
 from eval.calibration_metrics import align_worlds, compare_calibrations
 from mocap.calib.board_detection import DetectionSettings
@@ -234,14 +236,10 @@ def score_calibration(cal: SceneCalibration, scene: CalibrationScene) -> tuple[d
 def plot_residuals(board: dict[str, tuple[np.ndarray, np.ndarray]], wand: dict[str, tuple[np.ndarray, np.ndarray]],
                    image_size: tuple[int, int], path: Path) -> None:
     """Per camera: residual vectors over the image (magnified) and the residual scatter (px)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     names = list(board)
     C = len(names)
-    fig, axes = plt.subplots(2, C, figsize=(3.6 * C, 6.4), squeeze=False)
+    fig = Figure(figsize=(3.6 * C, 6.4))
+    axes = fig.subplots(2, C, squeeze=False)
     allerr = np.concatenate([board[n][1] for n in names] + [wand[n][1] for n in names if n in wand])
     lim = max(0.3, float(np.nanpercentile(np.abs(allerr), 99.5)) * 1.1) if len(allerr) else 1.0
     scale = 0.08 * image_size[0] / lim  # a residual of `lim` px draws 8 % of the image width
@@ -277,13 +275,10 @@ def plot_residuals(board: dict[str, tuple[np.ndarray, np.ndarray]], wand: dict[s
     fig.suptitle("Calibration reprojection residuals (detected - reprojected): board corners (blue), wand (orange)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def board_view_sheet(scene: CalibrationScene, path: Path, n_views: int = 3) -> None:
     """A few board pictures of every camera side by side (half size), floor view first."""
-    import cv2
-
     V = scene.board_images.shape[0]
     views = sorted(set(np.linspace(0, V - 1, min(n_views, V)).round().astype(int)))
     rows = [np.concatenate([cv2.resize(scene.board_images[v, c], None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)

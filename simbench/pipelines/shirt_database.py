@@ -24,20 +24,23 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, ContextManager
+from typing import Callable, ContextManager
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
+from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
+from mocap.shirt.shirt_model import SHIRT_BODIES, ShirtGeometry, ShirtModel
 from simbench.errors import SimbenchInputError
 from simbench.scenes.anthropometry import BodyParams
-
-if TYPE_CHECKING:  # the pipeline's modules (faiss, Pinocchio) load on first use: the CLI stays quick
-    from mocap.shirt.pose_database import PoseDatabase
-    from mocap.shirt.shirt_model import ShirtGeometry, ShirtModel
+from simbench.scenes.humanoid import humanoid_mjcf
+from simbench.scenes.shirt import COLOUR_NAMES, PATCH_COLOUR
+from simbench.scenes.surface import body_surface
 
 __all__ = [
     "OCCLUDER_BODIES",
@@ -64,6 +67,8 @@ its up (+Z) to image up (-y), its front (+X) towards the viewer (-z)."""
 _RENDER_SIZE = 96  # px: orthographic render, then normalised to 40x40
 _RENDER_MARGIN = 1.15
 _BATCH = 48  # poses per rasteriser call
+
+log = logging.getLogger(__name__)
 
 #: ``factory(description, total) -> (context manager, advance)``: a progress display the
 #: caller (the command line) supplies; ``advance(n)`` reports ``n`` more units done.
@@ -94,12 +99,8 @@ class PoseSampling:
                 raise SimbenchInputError(f"shirt database: {name} = {v}; give a range in [0, 180] degrees")
 
 
-def shirt_geometry(params: BodyParams) -> "ShirtGeometry":
+def shirt_geometry(params: BodyParams) -> ShirtGeometry:
     """Body-frame meshes of the shirt's bodies and occluders, with patch ids (from the bench's surface)."""
-    from mocap.shirt.shirt_model import SHIRT_BODIES, ShirtGeometry
-    from simbench.scenes.shirt import COLOUR_NAMES, PATCH_COLOUR
-    from simbench.scenes.surface import body_surface
-
     parts = {p.body: p for p in body_surface(params, shirt=True)}
     names = SHIRT_BODIES + OCCLUDER_BODIES
     verts, vbody, faces, fpatch = [], [], [], []
@@ -117,17 +118,12 @@ def shirt_geometry(params: BodyParams) -> "ShirtGeometry":
                          np.concatenate(fpatch), np.asarray(PATCH_COLOUR, np.int16), tuple(COLOUR_NAMES))
 
 
-def shirt_model(params: BodyParams) -> "ShirtModel":
-    from mocap.shirt.shirt_model import ShirtModel
-    from simbench.scenes.humanoid import humanoid_mjcf
-
+def shirt_model(params: BodyParams) -> ShirtModel:
     return ShirtModel(humanoid_mjcf(params), shirt_geometry(params))
 
 
-def sample_poses(model: "ShirtModel", sampling: PoseSampling, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def sample_poses(model: ShirtModel, sampling: PoseSampling, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Hinges ``(N, 11)`` uniform within the joint limits and view rotations ``(N, 3, 3)``."""
-    from scipy.spatial.transform import Rotation
-
     n = int(sampling.n_poses)
     lo, hi = model.kin.lower, model.kin.upper
     hinges = lo + (hi - lo) * rng.random((n, len(lo)))
@@ -138,10 +134,8 @@ def sample_poses(model: "ShirtModel", sampling: PoseSampling, rng: np.random.Gen
     return hinges, FACING_VIEWER @ turn
 
 
-def render_entry(model: "ShirtModel", hinges: np.ndarray, view_rotation: np.ndarray):
+def render_entry(model: ShirtModel, hinges: np.ndarray, view_rotation: np.ndarray):
     """The normalised tiny map of one pose, with its square in view metres (or None if no shirt shows)."""
-    from mocap.shirt.pose_database import tiny_id_map
-
     vv = model.view_vertices(hinges, view_rotation)
     centre, side = model.shirt_extent(vv)
     side *= _RENDER_MARGIN
@@ -155,10 +149,8 @@ def render_entry(model: "ShirtModel", hinges: np.ndarray, view_rotation: np.ndar
     return tm.ids, c_m, tm.side * px
 
 
-def build_database(params: BodyParams, sampling: PoseSampling, progress: Callable[[int], None] | None = None) -> "PoseDatabase":
+def build_database(params: BodyParams, sampling: PoseSampling, progress: Callable[[int], None] | None = None) -> PoseDatabase:
     """Sample, render and index a pose database for a subject."""
-    from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
-
     model = shirt_model(params)
     rng = np.random.default_rng(np.random.SeedSequence([sampling.seed, 0x5D8]))
     hinges, views = sample_poses(model, sampling, rng)
@@ -208,19 +200,17 @@ def default_database_path(params: BodyParams, sampling: PoseSampling) -> Path:
     return cache_dir() / f"shirt_db_{database_key(params, sampling)}.npz"
 
 
-def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path | None = None, echo=print,
-                    progress_factory: ProgressFactory | None = None) -> "PoseDatabase":
+def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path | None = None,
+                    progress_factory: ProgressFactory | None = None) -> PoseDatabase:
     """Load the database at ``path`` (default: the cache), building it first when missing.
 
     ``progress_factory`` shows the build's progress (the command line passes its progress
-    bar); without it the build reports only its start and end through ``echo``.
+    bar); without it the build reports only its start and end (``logging``).
     """
-    from mocap.shirt.pose_database import PoseDatabase
-
     path = Path(path) if path is not None else default_database_path(params, sampling)
     if path.is_file():
         return PoseDatabase.load(path)
-    echo(f"shirt pose database {path} missing: building {sampling.n_poses} poses")
+    log.info("shirt pose database %s missing: building %d poses", path, sampling.n_poses)
     if progress_factory is None:
         db = build_database(params, sampling)
     else:
@@ -228,5 +218,5 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
         with prog:
             db = build_database(params, sampling, progress=advance)
     db.save(path)
-    echo(f"wrote {path} ({len(db)} poses)")
+    log.info("wrote %s (%d poses)", path, len(db))
     return db
