@@ -216,10 +216,14 @@ class Calibration:
         path = Path(path)
         if not path.is_file():
             raise CalibrationFileError(path, "", "file not found", "pass the path of a calibration .yml/.yaml written by `mocap calibrate` or OpenCV")
+        if path.stat().st_size == 0:
+            raise CalibrationFileError(path, "", "the file is empty", "pass a calibration written by `mocap calibrate` or OpenCV")
         try:
             fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        except cv2.error as exc:  # malformed YAML
-            raise CalibrationFileError(path, "", f"not readable as OpenCV YAML ({exc.msg.strip() if hasattr(exc, 'msg') else exc})", "check the file is an OpenCV FileStorage YAML") from exc
+        except (cv2.error, SystemError) as exc:  # malformed YAML (OpenCV 5 may wrap its error in a SystemError)
+            first = str(getattr(exc, "err", "") or "").strip().splitlines()[:1]
+            why = f" ({first[0]})" if first else ""
+            raise CalibrationFileError(path, "", f"not readable as OpenCV YAML{why}", "check the file is an OpenCV FileStorage YAML") from None
         try:
             def node(key: str, required: bool = True):
                 n = fs.getNode(key)

@@ -12,13 +12,12 @@ import json
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 import typer
 
 from mocap.calibration import Calibration
 from mocap.cli import shirt as shirt_commands
-from mocap.cli.common import console, order_videos_by_camera, user_errors
+from mocap.cli.common import atomic_output_dir, check_videos_against_calibration, console, order_videos_by_camera, probe_video, user_errors
 from mocap.errors import InputFileError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Optical motion capture from webcam videos.")
@@ -40,36 +39,48 @@ def markers(
     """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject)."""
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
-    from mocap.marker_pipeline import MarkerPipelineParams, capture_markers, export_capture
+    from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, capture_from_detections, export_capture
 
     cal = Calibration.load(calibration)
     tmpl = load_template(template)
     paths = order_videos_by_camera(list(videos), cal.names)
+    if mode not in ("ir", "visible"):
+        raise InputFileError(Path("--mode"), f"value {mode!r}", "use 'ir' or 'visible'")
+    probes = [probe_video(p) for p in paths]
+    check_videos_against_calibration(paths, probes, cal)
     if fps is None:
-        cap = cv2.VideoCapture(str(paths[0]))
-        fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-        cap.release()
+        fps = probes[0].fps
+        if not (np.isfinite(fps) and fps > 0):
+            raise InputFileError(paths[0], f"the file states no frame rate ({fps})", "pass --fps with the capture's frame rate")
+    elif not (np.isfinite(fps) and 0 < fps <= 10000):
+        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
+    out_dir = Path(out)
     subj = None
     if subject is not None:
         from mocap.subject import SubjectModel
 
         subj = SubjectModel.load(subject)
-    if mode not in ("ir", "visible"):
-        raise InputFileError(Path("--mode"), f"value {mode!r}", "use 'ir' or 'visible'")
     params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None)
-    frames = [iter_video_frames(p) for p in paths]
-    n = min(int(cv2.VideoCapture(str(p)).get(cv2.CAP_PROP_FRAME_COUNT)) for p in paths)
-    times = np.arange(max(n, 1)) / fps
-    capture = capture_markers(frames, cal, tmpl, times, params, np.random.default_rng(seed), subj)
-    files = export_capture(capture, out, cal, subj)
-    traj = capture.trajectories
-    have = np.isfinite(traj.xyz).all(-1)
-    summary = {"frames": int(traj.xyz.shape[0]), "markers": len(traj.labels),
-               "reconstructed_fraction": float(have.mean()),
-               "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
-               "files": {k: str(v) for k, v in files.items()}}
-    (Path(out) / "summary.json").write_text(json.dumps(summary, indent=2))
-    console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out}/")
+    with atomic_output_dir(out_dir) as tmp:
+        stream = DetectionStream(len(cal), params.detection)
+        for images in zip(*(iter_video_frames(p) for p in paths)):
+            stream.add(images)
+        if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
+            raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
+                                 f"check --mode ({mode}: 'ir' finds bright markers on a dark scene, 'visible' white markers on a lit subject) and the exposure")
+        times = np.arange(len(stream.detections[0])) / fps
+        capture = capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
+                                          stream.ms)
+        files = export_capture(capture, tmp, cal, subj)
+        traj = capture.trajectories
+        have = np.isfinite(traj.xyz).all(-1)
+        summary = {"frames": int(traj.xyz.shape[0]), "markers": len(traj.labels),
+                   "reconstructed_fraction": float(have.mean()),
+                   "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
+                   "files": {k: str(out_dir / Path(v).name) for k, v in files.items()}}
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
+    console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out_dir}/",
+                  markup=False)
 
 
 @app.command()

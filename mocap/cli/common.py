@@ -1,11 +1,19 @@
-"""What the ``mocap`` commands share: the error policy (one line, exit code 2) and matching
-video files to calibrated cameras."""
+"""What the ``mocap`` commands share: the error policy (one line, exit code 2), matching
+video files to calibrated cameras and checking them against each other, and atomic output
+folders that never replace what the command did not write."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import typer
 from rich.console import Console
 
@@ -24,7 +32,10 @@ def exit_on_user_errors(*errors: type[Exception], console: Console = console):
             try:
                 return fn(*args, **kwargs)
             except errors as exc:
-                console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+                # The message is printed as text, not rich markup: "[[lighting.lights]]" or a
+                # path with brackets must reach the user intact.
+                console.print("[bold red]error:[/] ", end="", highlight=False)
+                console.print(str(exc), markup=False, highlight=False, soft_wrap=True)
                 raise typer.Exit(2)
 
         return wrapper
@@ -44,3 +55,82 @@ def order_videos_by_camera(videos: list[Path], camera_names: list[str]) -> list[
         raise InputFileError(videos[0] if videos else Path("."), f"{len(videos)} videos for {len(camera_names)} calibrated cameras {camera_names}",
                              "pass one video per camera, named after the camera (e.g. cam0.mp4) or in calibration order")
     return list(videos)
+
+
+@dataclass(frozen=True)
+class VideoProbe:
+    """What a video file says of itself: frame count, frame size (pixels) and rate (Hz)."""
+
+    frames: int
+    width: int
+    height: int
+    fps: float
+
+
+def probe_video(path: Path) -> VideoProbe:
+    """Open ``path`` and read its frame count, size and rate; one clear error if it cannot be read."""
+    if not Path(path).is_file():
+        raise InputFileError(path, "file not found", "give one video per camera")
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise InputFileError(path, "cannot be opened as a video", "give a video file OpenCV reads (MP4, AVI, MKV)")
+        probe = VideoProbe(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
+                           int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)), float(cap.get(cv2.CAP_PROP_FPS)))
+    finally:
+        cap.release()
+    if probe.frames <= 0 or probe.width <= 0 or probe.height <= 0:
+        raise InputFileError(path, f"holds no readable frame ({probe.frames} frames, {probe.width}x{probe.height})",
+                             "give a video with at least one frame")
+    return probe
+
+
+def check_videos_against_calibration(paths: list[Path], probes: list[VideoProbe], calibration) -> None:
+    """Every video has its camera's calibrated size, and all have the same number of frames.
+
+    A video at another size than its calibration would be measured with the wrong camera
+    model; videos of unequal length are not one synchronised take. Both are refused rather
+    than silently cut or rescaled."""
+    for path, probe, cam in zip(paths, probes, calibration):
+        if (probe.width, probe.height) != tuple(cam.size):
+            raise InputFileError(path, f"frames are {probe.width}x{probe.height} but camera {cam.name!r} was calibrated at "
+                                 f"{cam.size[0]}x{cam.size[1]}", "give the videos of the cameras this calibration describes, at their full size")
+    counts = {p.name: pr.frames for p, pr in zip(paths, probes)}
+    if len(set(counts.values())) > 1:
+        listed = ", ".join(f"{k} {v}" for k, v in counts.items())
+        raise InputFileError(paths[0], f"the videos differ in length ({listed} frames)",
+                             "trim them to the same synchronised span before capture")
+
+
+OUTPUT_MARKER = ".mocap-output.json"
+
+
+@contextlib.contextmanager
+def atomic_output_dir(out: Path):
+    """Yield a temporary folder next to ``out``; move it to ``out`` when the block succeeds.
+
+    ``out`` may be new, an empty folder, or a folder this command wrote before (it carries
+    :data:`OUTPUT_MARKER`); anything else is refused before any work, and nothing of the user's
+    is deleted. A failure leaves nothing behind."""
+    out = Path(out)
+    if out.exists() or out.is_symlink():
+        ours = out.is_dir() and not out.is_symlink() and (out / OUTPUT_MARKER).is_file()
+        empty = out.is_dir() and not out.is_symlink() and not any(out.iterdir())
+        if not (ours or empty):
+            what = "is a file" if out.is_file() else "exists and was not written by mocap"
+            raise InputFileError(out, f"--out {what}", "choose another --out, or move or remove it yourself")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        (tmp / OUTPUT_MARKER).write_text(json.dumps({"tool": "mocap markers", "pid": os.getpid()}))
+        yield tmp
+        if out.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
+            os.replace(out, old / out.name)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
