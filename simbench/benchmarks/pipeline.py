@@ -15,14 +15,18 @@ Each figure is the fastest of ``passes`` passes (a shared machine disturbs singl
 
 from __future__ import annotations
 
-import logging
-import time
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-log = logging.getLogger(__name__)
+from mocap.detection import DetectionParams, detect_markers
+from mocap.marker_pipeline import capture_from_detections
+from simbench.benchmarks.timing import best_ms, one_core
+from simbench.pipelines.markers import label_template, pipeline_params, subject_model
+from simbench.scenario import load_scenario
+from simbench.stage.build import build_stage
+from simbench.stage.rendering import render_frames
 
 STAGES = ("detection", "correspondence", "labelling", "tracking", "reconstruction", "skeleton")
 TARGET_MS = 33.0  # real time at 30 Hz
@@ -57,28 +61,10 @@ class PipelineBenchmark:
         return "\n".join(lines)
 
 
-def _best_ms(fn, passes: int) -> float:
-    best = np.inf
-    for _ in range(passes):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return 1e3 * best
-
-
 def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/quickstart.toml", passes: int = 3,
                            progress=None) -> PipelineBenchmark:
     """Render ``n_frames`` of the scenario, then time every stage on them (see the module doc)."""
-    from simbench.benchmarks.render import _one_core
-
-    _one_core()
-    from mocap.detection import DetectionParams, detect_markers
-    from mocap.marker_pipeline import capture_from_detections
-    from simbench.stage.build import build_stage
-    from simbench.stage.rendering import render_frames
-    from simbench.pipelines.run import label_template, pipeline_params, subject_model
-    from simbench.scenario import load_scenario
-
+    one_core()
     sc = load_scenario(scenario_path, overrides={"duration_s": n_frames / 30.0 + 1e-6, "fps": 30.0})
     bench = build_stage(sc)
     images: list[list[np.ndarray]] = []
@@ -99,7 +85,7 @@ def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/q
         for c in range(C):
             detections[c] = [detect_markers(images[f][c], det_params) for f in range(F)]
 
-    detection_ms = _best_ms(detect_all, passes) / F
+    detection_ms = best_ms(detect_all, passes) / F
     grays = [[cv2.cvtColor(im, cv2.COLOR_RGB2GRAY) if im.ndim == 3 else im for im in fr] for fr in images]
 
     def reference() -> None:
@@ -110,7 +96,7 @@ def run_pipeline_benchmark(n_frames: int = 30, scenario_path: str = "scenarios/q
                 _, mask = cv2.threshold(g, 100, 255, cv2.THRESH_BINARY)
                 cv2.connectedComponentsWithStats(mask, connectivity=8)
 
-    reference_ms = _best_ms(reference, passes) / F
+    reference_ms = best_ms(reference, passes) / F
     template, subject = label_template(bench), subject_model(bench)
     stage = {k: np.inf for k in STAGES if k != "detection"}
     for _ in range(passes):

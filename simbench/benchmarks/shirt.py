@@ -8,40 +8,43 @@ and numpy's elementwise throughput on this core now.
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
-import cv2
 import faiss
 import numpy as np
 
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.histogram_search import naive_search, search_shirt
 from mocap.shirt.pipeline import STAGES, ShirtPipelineParams
+from simbench.benchmarks.timing import one_core
 from simbench.pipelines.shirt import start_session, track_sequence
 from simbench.render.gl_context import configure_gl_environment
 from simbench.scenario import load_scenario
 from simbench.stage.build import build_stage
 from simbench.stage.rendering import render_frames
 
+log = logging.getLogger(__name__)
+
 DEFAULT_SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "shirt_office.toml"
 
 
-def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, naive_frames: int = 2, echo=print) -> dict[str, float]:
+def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, naive_frames: int = 2) -> dict[str, float]:
     """``simbench bench shirt``: ms per 2-camera frame per stage on one core, with references.
 
     References measured in the same run: the histogram search without the integral
     histogram (one histogram per window), and the baseline pipeline; and the paper's
     reported 120 ms per frame (Java, Core 2 Quad 2.4 GHz, 2011; a stated figure, not measured).
     """
-    cv2.setNumThreads(1)
+    one_core()
     faiss.omp_set_num_threads(1)
     configure_gl_environment()
     path = scenario_path or str(DEFAULT_SCENARIO)
     sc = load_scenario(path)
     sc = sc.with_overrides({"duration_s": (n_frames + 3) / sc.fps, "motion.start_s": 1.0})
     bench = build_stage(sc)
-    echo(f"simbench shirt benchmark: {sc.name}, {len(bench.cameras)} cameras {bench.cameras[0].width}x{bench.cameras[0].height}, "
+    log.info(f"simbench shirt benchmark: {sc.name}, {len(bench.cameras)} cameras {bench.cameras[0].width}x{bench.cameras[0].height}, "
          f"{n_frames} frames timed after 3 warm-up frames, one core (BLAS, OpenCV, faiss: 1 thread)")
     seq = render_frames(bench, keep_frames=True, keep_ids=True)
     gt = seq.ground_truth
@@ -52,19 +55,19 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
         run = track_sequence(session.tracker(p), seq.frames)
         per_method[name] = run.timings_ms[3:]
     full = per_method["full"]
-    echo(f"{'stage':<22}{'ms / 2-camera frame':>22}")
+    log.info(f"{'stage':<22}{'ms / 2-camera frame':>22}")
     for s, v in zip(STAGES, full.mean(axis=0)):
-        echo(f"{s:<22}{v:>22.2f}")
+        log.info(f"{s:<22}{v:>22.2f}")
         results[f"ms.{s}"] = float(v)
     total = float(full.sum(axis=1).mean())
     results["ms.total"] = total
     results["ms.total_baseline"] = float(per_method["baseline"].sum(axis=1).mean())
-    echo(f"{'total (full method)':<22}{total:>22.2f}   ({1000.0 / total:.1f} frames/s; target <= 33 ms)")
+    log.info(f"{'total (full method)':<22}{total:>22.2f}   ({1000.0 / total:.1f} frames/s; target <= 33 ms)")
     per_frame = full.sum(axis=1)
     p50, p95, worst = np.percentile(per_frame, [50, 95, 100])
     results.update({"ms.total_p50": float(p50), "ms.total_p95": float(p95), "ms.total_max": float(worst)})
-    echo(f"{'  per frame':<22}{'median':>10}{p50:>8.2f}   95th percentile {p95:.2f}   max {worst:.2f}")
-    echo(f"{'total (baseline)':<22}{results['ms.total_baseline']:>22.2f}")
+    log.info(f"{'  per frame':<22}{'median':>10}{p50:>8.2f}   95th percentile {p95:.2f}   max {worst:.2f}")
+    log.info(f"{'total (baseline)':<22}{results['ms.total_baseline']:>22.2f}")
     # reference: histogram search without the integral histogram, same frames and masks
     bg = BackgroundModel()
     bg.learn_empty(session.empty[0])
@@ -82,9 +85,9 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     search_shirt(img)
     t_int_nomask = (time.perf_counter() - t0) * 1e3
     results.update({"ms.histogram_integral_1cam": t_int, "ms.histogram_naive_1cam": t_naive, "ms.histogram_integral_nomask_1cam": t_int_nomask})
-    echo(f"reference: histogram search, 1 camera, integral {t_int:.2f} ms vs naive per-window histograms {t_naive:.1f} ms "
+    log.info(f"reference: histogram search, 1 camera, integral {t_int:.2f} ms vs naive per-window histograms {t_naive:.1f} ms "
          f"(same result: x {loc_i.x:.1f}/{loc_n.x:.1f}, s {loc_i.s:.1f}/{loc_n.s:.1f}); without foreground mask {t_int_nomask:.2f} ms")
-    echo(f"reference: seed 001 reports 120 ms per frame (Java, Core 2 Quad 2.4 GHz); this run: {total:.1f} ms ({120.0 / total:.1f}x)")
+    log.info(f"reference: seed 001 reports 120 ms per frame (Java, Core 2 Quad 2.4 GHz); this run: {total:.1f} ms ({120.0 / total:.1f}x)")
     # how fast this core is right now (shared machines): numpy's elementwise throughput
     a, b = np.random.default_rng(0).random((2, 1_000_000))
     t0 = time.perf_counter()
@@ -92,6 +95,6 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
         np.maximum(a, b)
     ns = (time.perf_counter() - t0) / 20 / 1e6 * 1e9
     results["machine.ns_per_element"] = ns
-    echo(f"reference: numpy.maximum on 1e6 float64 takes {ns:.2f} ns per element on this core now "
+    log.info(f"reference: numpy.maximum on 1e6 float64 takes {ns:.2f} ns per element on this core now "
          "(an idle recent x86 core: about 0.5-1 ns); stage times scale with it")
     return results

@@ -1,5 +1,5 @@
 """What every ``simbench`` sub-command shares: the error policy, exit codes, signals,
-progress bars, ``--set``.
+progress bars, where library messages (``logging``) are shown.
 
 Exit codes of the ``simbench`` command line:
 
@@ -17,6 +17,7 @@ Exit codes of the ``simbench`` command line:
 from __future__ import annotations
 
 import functools
+import logging
 import signal
 import sys
 from typing import Callable
@@ -58,11 +59,49 @@ def user_errors(fn: Callable) -> Callable:
     return wrapper
 
 
+class _ConsoleHandler(logging.Handler):
+    """A log record as one plain line on the console the progress bars use (a line printed
+    while a bar is live goes above it instead of breaking it)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        prefix = f"{record.levelname.lower()}: " if record.levelno >= logging.WARNING else ""
+        console.print(prefix + self.format(record), markup=False, highlight=False, soft_wrap=True)
+
+
+class _StdoutHandler(logging.Handler):
+    """A log record as a plain line on standard output (``sys.stdout`` as it is at the time)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(self.format(record), flush=True)
+
+
+#: Loggers whose records are a command's results (benchmark figures): printed on stdout.
+RESULT_LOGGERS = ("simbench.benchmarks",)
+
+
+def configure_logging() -> None:
+    """Show the library's messages (``logging``, INFO and up, of ``simbench`` and ``mocap``)
+    on stderr, and the benchmarks' figures on stdout; once per process."""
+    for name in ("simbench", "mocap"):
+        logger = logging.getLogger(name)
+        if not any(isinstance(h, _ConsoleHandler) for h in logger.handlers):
+            logger.addHandler(_ConsoleHandler())
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+    for name in RESULT_LOGGERS:
+        logger = logging.getLogger(name)
+        if not any(isinstance(h, _StdoutHandler) for h in logger.handlers):
+            logger.addHandler(_StdoutHandler())
+        logger.propagate = False
+
+
 def run_app(app: typer.Typer) -> None:
-    """Run the command line with SIGINT and SIGTERM turned into
-    :class:`simbench.interrupts.Interrupted`: one line on stderr, unfinished outputs
-    removed, exit 128 + the signal's number. An exception that a signal turned into
-    something else on its way out (see :mod:`simbench.interrupts`) counts as that signal."""
+    """Run the command line with library messages shown (:func:`configure_logging`) and
+    SIGINT and SIGTERM turned into :class:`simbench.interrupts.Interrupted`: one line on
+    stderr, unfinished outputs removed, exit 128 + the signal's number. An exception that a
+    signal turned into something else on its way out (see :mod:`simbench.interrupts`)
+    counts as that signal."""
+    configure_logging()
     interrupts.install()
     try:
         app()

@@ -107,7 +107,7 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
     from simbench.sweeps import regression as rg
 
     suites = rg.load_suites(suites_file)
-    s = suites.get(suite)
+    suites.get(suite)  # an unknown suite: a user error before anything runs
     base_path = baseline or rg.default_baseline_path(suites_file, suite)
     base = rg.load_baseline(base_path)
     t0 = time.perf_counter()

@@ -22,28 +22,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
-import mujoco
 import numpy as np
 
-from eval import marker_metrics, skeleton_metrics
 from mocap.detection import DetectionParams
 from mocap.errors import MocapInputError
-from mocap.labelling import LabelTemplate, save_template
+from mocap.labelling import save_template
 from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
-from mocap.reconstruction import ReconstructionParams
-from mocap.subject import SubjectModel
 from mocap.trackers import get_tracker
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
+from simbench.output_dir import AtomicOutputDir
 from simbench.pipelines.calibration import run_calibration
+from simbench.pipelines.markers import label_template, pipeline_params, score_markers, subject_model
 from simbench.pipelines.report import write_run_report
 from simbench.pipelines.shirt import run_shirt_capture
 from simbench.pipelines.shirt_database import ProgressFactory
 from simbench.scenario import Scenario
-from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
 from simbench.stage.build import build_stage
-from simbench.stage.rendering import AtomicOutputDir, RenderedSequence, render_frames, save_scenario_copy, write_render_outputs
-from simbench.stage.stage import Stage
+from simbench.stage.rendering import (RenderedSequence, contact_sheet_rows, render_frames, save_scenario_copy,
+                                      write_contact_sheet, write_render_outputs)
 
 
 @dataclass(frozen=True)
@@ -110,63 +107,6 @@ class _Stages:
         return any(f.stage == stage for f in self.failures)
 
 
-def label_template(bench: Stage) -> LabelTemplate:
-    """The subject's markers in its T-pose, subject-local frame (what a user's template holds);
-    for a real capture (no humanoid), its markers in the capture's reference frame."""
-    reference = bench.capture_reference()
-    if reference is not None:
-        return reference.label_template()
-    xml = humanoid_mjcf(bench.params, marker_set=bench.scenario.subject.markers)
-    m = mujoco.MjModel.from_xml_string(xml)
-    d = mujoco.MjData(m)
-    d.qpos[:] = tpose_qpos(bench.params)
-    d.qpos[0:2] = 0.0
-    mujoco.mj_kinematics(m, d)
-    pos = np.array([d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)] for n in bench.marker_names])
-    return LabelTemplate(tuple(bench.marker_names), pos)
-
-
-def subject_model(bench: Stage) -> SubjectModel | None:
-    """The humanoid's subject model; None for a real capture (no body: markers only)."""
-    if bench.capture_reference() is not None:
-        return None
-    return SubjectModel.from_mjcf_text(humanoid_mjcf(bench.params, marker_set=bench.scenario.subject.markers),
-                                       name=bench.scenario.name)
-
-
-def pipeline_params(sc: Scenario) -> MarkerPipelineParams:
-    cfg = sc.markers_pipeline
-    return MarkerPipelineParams(
-        detection=DetectionParams(mode=sc.sensor.mode),
-        labelling=cfg.labelling,
-        tracker=cfg.tracker,
-        reconstruction=ReconstructionParams(smoothing=cfg.smoothing, max_gap_frames=cfg.max_gap_frames),
-        solve_skeleton=cfg.solve_skeleton,
-    )
-
-
-def score_markers(gt, capture: MarkerCapture) -> dict[str, float]:
-    traj = capture.trajectories
-    idx = [traj.labels.index(n) for n in gt.marker_names]
-    est = traj.xyz[:, idx]
-    tracked = capture.tracks.predicted_xy[:, :, idx]
-    metrics = marker_metrics.summarize_markers(est, gt.markers_3d, gt.marker_visible, tracked_xy=tracked,
-                                               true_xy=gt.markers_2d, filled=traj.filled[:, idx])
-    fit = capture.skeleton
-    if fit is not None:
-        mask = fit.well_constrained() if hasattr(fit, "well_constrained") else None
-        hinge_idx = [fit.hinge_names.index(h) for h in gt.hinge_names]
-        est_ang = fit.joint_angles_rad[:, hinge_idx]
-        true_ang = gt.qpos[:, 7:]
-        m = None if mask is None else np.asarray(mask)[..., hinge_idx]
-        metrics["skeleton.joint_angle_rmse_deg"] = skeleton_metrics.joint_angle_rmse_deg(est_ang, true_ang, m)
-        metrics["skeleton.joint_angle_rmse_all_deg"] = skeleton_metrics.joint_angle_rmse_deg(est_ang, true_ang)
-        body_idx = [fit.body_names.index(b) for b in gt.joint_names]
-        metrics["skeleton.joint_position_rmse_mm"] = skeleton_metrics.joint_position_rmse_mm(
-            fit.joint_centres_m[:, body_idx], gt.joint_centres)
-    return metrics
-
-
 def preflight(scenario: Scenario) -> None:
     """Settings only the pipeline reads, checked before anything renders (a user error
     found after rendering would be a failed stage, exit 3, rather than exit 2)."""
@@ -188,117 +128,151 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
     is moved into place as usual. An interruption (KeyboardInterrupt, or a signal the CLI
     turns into an exception) or a failure before the frames exist discards everything.
     """
-    timings: dict[str, float] = {}
     t0 = time.perf_counter()
     preflight(scenario)
     output = AtomicOutputDir(out, scenario=scenario.name, kind="run") if (out is not None and write_outputs) else None
     with output if output is not None else nullcontext() as tmp:
-        stages = _Stages(output.public if output is not None else str)
-        bench = build_stage(scenario)
-        C = len(bench.cameras)
-        has_markers = len(bench.marker_names) > 0
-        stream = DetectionStream(C, DetectionParams(mode=scenario.sensor.mode)) if has_markers else None
-        keep = {0, scenario.n_frames // 2, scenario.n_frames - 1}
-        kept_frames: dict[int, np.ndarray] = {}
-        writer = write_render_outputs(bench, tmp, png=False) if tmp is not None else None
+        run = _Run(scenario, _Stages(output.public if output is not None else str), tmp, t0)
+        run.render(progress)
+        run.calibration_session()
+        run.marker_capture()
+        run.shirt_capture(progress_factory)
+        run.finish()
+        if tmp is not None:
+            run.write_outputs(tmp)
+    return RunResult(run.metrics, Path(out) if out else None, run.seq, run.capture, run.timings, list(run.stages.failures))
+
+
+class _Run:
+    """One run's state as its steps fill it in (:func:`run_scenario` calls them in order)."""
+
+    def __init__(self, scenario: Scenario, stages: _Stages, tmp: Path | None, t0: float) -> None:
+        self.scenario, self.stages, self.t0 = scenario, stages, t0
+        self.stage = build_stage(scenario)
+        self.has_markers = len(self.stage.marker_names) > 0
+        self.stream = DetectionStream(len(self.stage.cameras), DetectionParams(mode=scenario.sensor.mode)) if self.has_markers else None
+        self.kept_frames: dict[int, np.ndarray] = {}  # the contact sheet's frames
+        self.tmp = tmp
+        self.timings: dict[str, float] = {}
+        self.metrics: dict[str, float] = {}
+        self.report_sections: list[str] = []
+        self.capture: MarkerCapture | None = None
+
+    def render(self, progress) -> None:
+        """Render every frame: videos written, detections streamed, the contact sheet's frames kept;
+        the frames themselves are kept only for the shirt pipeline."""
+        keep = set(contact_sheet_rows(self.scenario.n_frames))
+        writer = write_render_outputs(self.stage, self.tmp, png=False) if self.tmp is not None else None
 
         def on_frame(fo):
             interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the run here
             if writer is not None:
                 writer[0](fo)
-            if stream is not None:
-                stream.add(list(fo.images))
+            if self.stream is not None:
+                self.stream.add(list(fo.images))
             if fo.index in keep:
-                kept_frames[fo.index] = fo.images.copy()
+                self.kept_frames[fo.index] = fo.images.copy()
 
-        shirt = scenario.subject.shirt
+        shirt = self.scenario.subject.shirt
         try:
-            seq = render_frames(bench, on_frame=on_frame, keep_frames=shirt, keep_ids=shirt, progress=progress)
+            self.seq = render_frames(self.stage, on_frame=on_frame, keep_frames=shirt, keep_ids=shirt, progress=progress)
         finally:
             if writer is not None:
                 writer[1]()
-        timings["render_s"] = time.perf_counter() - t0
-        gt = seq.ground_truth
-        metrics: dict[str, float] = {}
-        capture = None
-        calibration = gt.calibration()
-        calib_report: list[str] = []
-        if scenario.calibration_scene is not None:
-            # Calibration session (simbench/pipelines/calibration.py): render the board and wand
-            # pictures, run the calibration tool, score it. Its estimate is in the true
-            # world frame without alignment when the scene has a floor view (the floor
-            # board defines the world), else rigidly aligned to the true camera centres.
-            t1 = time.perf_counter()
-            with stages.run("calibration session"):
-                calib_metrics, calib_report, estimated = run_calibration(bench, tmp)
-                metrics.update(calib_metrics)
-                if scenario.markers_pipeline.calibration == "estimated":
-                    calibration = estimated
-            timings["calibration_s"] = time.perf_counter() - t1
-        no_calibration = scenario.markers_pipeline.calibration == "estimated" and stages.failed("calibration session")
-        if has_markers and no_calibration:
-            stages.record("marker pipeline", "not run: it needs the estimated calibration, and the calibration session failed")
-        if has_markers and not no_calibration:
-            t1 = time.perf_counter()
-            with stages.run("marker pipeline"):
-                template = label_template(bench)
-                subject = subject_model(bench)
-                reference = bench.capture_reference()  # a real capture: rigid clusters instead of a skeleton
-                marker_model = reference.marker_model() if reference is not None else None
+        self.timings["render_s"] = time.perf_counter() - self.t0
+        self.gt = self.seq.ground_truth
+        self.calibration = self.gt.calibration()
 
-                def capture_with(params: MarkerPipelineParams) -> MarkerCapture:
-                    rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x7AC]))
-                    return capture_from_detections(stream.detections, calibration, template, gt.times,
-                                                   params, rng, subject, stream.ms, marker_model=marker_model)
+    def calibration_session(self) -> None:
+        """With a ``[calibration_scene]``: render the board and wand pictures, run the calibration
+        tool, score it (:mod:`simbench.pipelines.calibration`). Its estimate is in the true world
+        frame without alignment when the scene has a floor view (the floor board defines the
+        world), else rigidly aligned to the true camera centres."""
+        if self.scenario.calibration_scene is None:
+            return
+        t1 = time.perf_counter()
+        with self.stages.run("calibration session"):
+            calib_metrics, calib_report, estimated = run_calibration(self.stage, self.tmp)
+            self.metrics.update(calib_metrics)
+            self.report_sections += calib_report
+            if self.scenario.markers_pipeline.calibration == "estimated":
+                self.calibration = estimated
+        self.timings["calibration_s"] = time.perf_counter() - t1
 
-                try:
-                    capture = capture_with(pipeline_params(scenario))
-                except Exception as exc:
-                    interrupts.raise_if_pending(exc)
-                    if not scenario.markers_pipeline.solve_skeleton:
-                        raise
-                    # Keep the markers when only the skeleton solve fails: run again without
-                    # it; if that raises too, the marker pipeline itself failed (its cause).
-                    capture = capture_with(dataclasses.replace(pipeline_params(scenario), solve_skeleton=False))
-                    stages.record("skeleton solve", exc)
-            timings["pipeline_s"] = time.perf_counter() - t1
-            if capture is not None:
-                with stages.run("scoring"):
-                    metrics.update(score_markers(gt, capture))
-        shirt_report: list[str] = []
-        if shirt:
-            # The colour-shirt pipeline of seed 001 (simbench/pipelines/shirt.py).
-            t1 = time.perf_counter()
-            with stages.run("shirt pipeline"):
-                shirt_metrics, shirt_report = run_shirt_capture(bench, seq.frames, gt, tmp, progress_factory=progress_factory)
-                metrics.update(shirt_metrics)
-            timings["shirt_pipeline_s"] = time.perf_counter() - t1
-        metrics["run.frames"] = gt.n_frames
-        metrics["run.cameras"] = C
-        metrics["run.mean_subframes"] = float(gt.n_subframes.mean())
-        timings["total_s"] = time.perf_counter() - t0
-        if tmp is not None:
-            with stages.run("ground truth"):
-                gt.save(tmp / "ground_truth")
-                gt.calibration().save_opencv_yaml(tmp / "calibration_ground_truth.yml")
-            save_scenario_copy(scenario, tmp)
-            if capture is not None:
-                with stages.run("exports"):
-                    export_capture(capture, tmp / "exports", calibration, subject_model(bench))
-                with stages.run("exports (label template, subject file)"):
-                    (tmp / "exports").mkdir(exist_ok=True)
-                    save_template(label_template(bench), tmp / "exports" / "label_template.csv")
-                    # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
-                    if subject_model(bench) is not None:
-                        subject_model(bench).save_toml(tmp / "exports" / "subject.toml")
-            with stages.run("contact sheet"):
-                _contact_sheet(bench, gt, kept_frames, tmp / "contact_sheet.png")
-            with stages.run("report"):
-                write_run_report(tmp, scenario, gt, capture, metrics, timings, extra_sections=calib_report + shirt_report,
-                                 calibration=calibration)
-            _note_failures_in_report(tmp / "report.md", scenario, metrics, stages.failures)
-            write_metrics_json(tmp / "metrics.json", metrics, stages.failures)
-    return RunResult(metrics, Path(out) if out else None, seq, capture, timings, list(stages.failures))
+    def marker_capture(self) -> None:
+        """The marker pipeline on the streamed detections, then its scores. When only the
+        skeleton solve fails, the markers are kept (the pipeline runs again without it)."""
+        if not self.has_markers:
+            return
+        if self.scenario.markers_pipeline.calibration == "estimated" and self.stages.failed("calibration session"):
+            self.stages.record("marker pipeline", "not run: it needs the estimated calibration, and the calibration session failed")
+            return
+        t1 = time.perf_counter()
+        with self.stages.run("marker pipeline"):
+            params = pipeline_params(self.scenario)
+            try:
+                self.capture = self._capture_with(params)
+            except Exception as exc:
+                interrupts.raise_if_pending(exc)
+                if not self.scenario.markers_pipeline.solve_skeleton:
+                    raise
+                # if this raises too, the marker pipeline itself failed (its cause)
+                self.capture = self._capture_with(dataclasses.replace(params, solve_skeleton=False))
+                self.stages.record("skeleton solve", exc)
+        self.timings["pipeline_s"] = time.perf_counter() - t1
+        if self.capture is not None:
+            with self.stages.run("scoring"):
+                self.metrics.update(score_markers(self.gt, self.capture))
+
+    def _capture_with(self, params: MarkerPipelineParams) -> MarkerCapture:
+        reference = self.stage.capture_reference()  # a real capture: rigid clusters instead of a skeleton
+        rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0x7AC]))
+        return capture_from_detections(self.stream.detections, self.calibration, label_template(self.stage), self.gt.times,
+                                       params, rng, subject_model(self.stage), self.stream.ms,
+                                       marker_model=reference.marker_model() if reference is not None else None)
+
+    def shirt_capture(self, progress_factory: ProgressFactory | None) -> None:
+        """The colour-shirt pipeline of seed 001 (:mod:`simbench.pipelines.shirt`) when the subject wears the shirt."""
+        if not self.scenario.subject.shirt:
+            return
+        t1 = time.perf_counter()
+        with self.stages.run("shirt pipeline"):
+            shirt_metrics, shirt_report = run_shirt_capture(self.stage, self.seq.frames, self.gt, self.tmp,
+                                                            progress_factory=progress_factory)
+            self.metrics.update(shirt_metrics)
+            self.report_sections += shirt_report
+        self.timings["shirt_pipeline_s"] = time.perf_counter() - t1
+
+    def finish(self) -> None:
+        self.metrics["run.frames"] = self.gt.n_frames
+        self.metrics["run.cameras"] = len(self.stage.cameras)
+        self.metrics["run.mean_subframes"] = float(self.gt.n_subframes.mean())
+        self.timings["total_s"] = time.perf_counter() - self.t0
+
+    def write_outputs(self, tmp: Path) -> None:
+        """Ground truth, exports, contact sheet, report and ``metrics.json`` into the run's folder."""
+        stages, stage = self.stages, self.stage
+        with stages.run("ground truth"):
+            self.gt.save(tmp / "ground_truth")
+            self.gt.calibration().save_opencv_yaml(tmp / "calibration_ground_truth.yml")
+        save_scenario_copy(self.scenario, tmp)
+        if self.capture is not None:
+            with stages.run("exports"):
+                export_capture(self.capture, tmp / "exports", self.calibration, subject_model(stage))
+            with stages.run("exports (label template, subject file)"):
+                (tmp / "exports").mkdir(exist_ok=True)
+                save_template(label_template(stage), tmp / "exports" / "label_template.csv")
+                # The subject file a user would hand `mocap markers --subject` (MJCF + marker placement).
+                subject = subject_model(stage)
+                if subject is not None:
+                    subject.save_toml(tmp / "exports" / "subject.toml")
+        with stages.run("contact sheet"):
+            write_contact_sheet(stage, self.gt, self.kept_frames, tmp / "contact_sheet.png")
+        with stages.run("report"):
+            write_run_report(tmp, self.scenario, self.gt, self.capture, self.metrics, self.timings,
+                             extra_sections=self.report_sections, calibration=self.calibration)
+        _note_failures_in_report(tmp / "report.md", self.scenario, self.metrics, stages.failures)
+        write_metrics_json(tmp / "metrics.json", self.metrics, stages.failures)
 
 
 def write_metrics_json(path: Path, metrics: dict[str, float], failures: list[StageFailure]) -> None:
@@ -331,12 +305,3 @@ def _jsonable(v):
     if isinstance(v, (np.integer,)):
         return int(v)
     return v
-
-
-def _contact_sheet(bench: Stage, gt, kept: dict[int, np.ndarray], path: Path) -> None:
-    from simbench.render.contact_sheet import contact_sheet
-
-    rows = sorted(kept)
-    frames = {(k, c.name): kept[k][ci] for k in rows for ci, c in enumerate(bench.cameras)}
-    overlays = {(k, c.name): gt.markers_2d[k, ci][gt.marker_visible[k, ci]] for k in rows for ci, c in enumerate(bench.cameras)}
-    contact_sheet(frames, {k: float(gt.times[k]) for k in rows}, path, overlays=overlays)

@@ -24,7 +24,7 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from simbench.scenes.anthropometry import BODY_NAMES, BodyDims, BodyParams, body_dimensions
+from simbench.scenes.anthropometry import BODY_NAMES, BodyParams, body_dimensions
 from simbench.scenes.markers import MARKER_RADIUS_M, marker_set as _marker_set
 
 if TYPE_CHECKING:  # pragma: no cover - typing only

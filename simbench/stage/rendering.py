@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -121,13 +121,18 @@ def write_render_outputs(bench: Stage, seq_writer_dir: Path, png: bool) -> tuple
     return on_frame, close
 
 
-def write_contact_sheet(bench: Stage, seq: RenderedSequence, path: Path, n_rows: int = 3) -> None:
-    gt = seq.ground_truth
-    F = gt.n_frames
-    rows = sorted(set(np.linspace(0, F - 1, min(n_rows, F)).round().astype(int)))
-    frames = {(k, c.name): seq.frames[k, ci] for k in rows for ci, c in enumerate(bench.cameras)}
-    overlays = {(k, c.name): gt.markers_2d[k, ci][gt.marker_visible[k, ci]] for k in rows for ci, c in enumerate(bench.cameras)}
-    contact_sheet(frames, {k: float(gt.times[k]) for k in rows}, path, overlays=overlays)
+def contact_sheet_rows(n_frames: int, n_rows: int = 3) -> list[int]:
+    """The frames a contact sheet shows: the first, the middle and the last (``n_rows`` spread evenly)."""
+    return sorted(set(np.linspace(0, n_frames - 1, min(n_rows, n_frames)).round().astype(int).tolist()))
+
+
+def write_contact_sheet(stage: Stage, gt: GroundTruth, frames: dict[int, np.ndarray], path: Path) -> None:
+    """One row per frame index of ``frames`` (``(C, H, W, 3)`` images of every camera), one column
+    per camera, with the visible markers' true projections drawn over them."""
+    rows = sorted(frames)
+    images = {(k, c.name): frames[k][ci] for k in rows for ci, c in enumerate(stage.cameras)}
+    overlays = {(k, c.name): gt.markers_2d[k, ci][gt.marker_visible[k, ci]] for k in rows for ci, c in enumerate(stage.cameras)}
+    contact_sheet(images, {k: float(gt.times[k]) for k in rows}, path, overlays=overlays)
 
 
 def save_scenario_copy(scenario: Scenario, directory: Path) -> None:
@@ -151,6 +156,7 @@ def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, prog
         cal = seq.ground_truth.calibration()
         cal.save_opencv_yaml(tmp / "calibration.yml")
         cal.save_toml(tmp / "calibration.toml")
-        write_contact_sheet(bench, seq, tmp / "contact_sheet.png")
+        write_contact_sheet(bench, seq.ground_truth, {k: seq.frames[k] for k in contact_sheet_rows(seq.ground_truth.n_frames)},
+                            tmp / "contact_sheet.png")
         save_scenario_copy(scenario, tmp)
     return seq

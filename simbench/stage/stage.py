@@ -11,10 +11,8 @@ for a real capture's markers, :class:`~simbench.stage.capture.CaptureStage`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
-import trimesh
 
 from simbench.errors import ScenarioError
 from simbench.render import ids as idc

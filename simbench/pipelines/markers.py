@@ -1,0 +1,79 @@
+"""The marker pipeline's part of a run: what a user's session gives it (label template,
+subject model, the scenario's pipeline settings) and its scores against the ground truth."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from eval import marker_metrics, skeleton_metrics
+from mocap.detection import DetectionParams
+from mocap.labelling import LabelTemplate
+from mocap.marker_pipeline import MarkerCapture, MarkerPipelineParams
+from mocap.reconstruction import ReconstructionParams
+from mocap.subject import SubjectModel
+from simbench.scenario import Scenario
+from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
+from simbench.stage.ground_truth import GroundTruth
+from simbench.stage.stage import Stage
+
+__all__ = ["label_template", "subject_model", "pipeline_params", "score_markers"]
+
+
+def label_template(stage: Stage) -> LabelTemplate:
+    """The subject's markers in its T-pose, subject-local frame (what a user's template holds);
+    for a real capture (no humanoid), its markers in the capture's reference frame."""
+    reference = stage.capture_reference()
+    if reference is not None:
+        return reference.label_template()
+    xml = humanoid_mjcf(stage.params, marker_set=stage.scenario.subject.markers)
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    d.qpos[:] = tpose_qpos(stage.params)
+    d.qpos[0:2] = 0.0
+    mujoco.mj_kinematics(m, d)
+    pos = np.array([d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, n)] for n in stage.marker_names])
+    return LabelTemplate(tuple(stage.marker_names), pos)
+
+
+def subject_model(stage: Stage) -> SubjectModel | None:
+    """The humanoid's subject model; None for a real capture (no body: markers only)."""
+    if stage.capture_reference() is not None:
+        return None
+    return SubjectModel.from_mjcf_text(humanoid_mjcf(stage.params, marker_set=stage.scenario.subject.markers),
+                                       name=stage.scenario.name)
+
+
+def pipeline_params(sc: Scenario) -> MarkerPipelineParams:
+    """The marker pipeline's settings from the scenario's ``[markers_pipeline]`` and sensor mode."""
+    cfg = sc.markers_pipeline
+    return MarkerPipelineParams(
+        detection=DetectionParams(mode=sc.sensor.mode),
+        labelling=cfg.labelling,
+        tracker=cfg.tracker,
+        reconstruction=ReconstructionParams(smoothing=cfg.smoothing, max_gap_frames=cfg.max_gap_frames),
+        solve_skeleton=cfg.solve_skeleton,
+    )
+
+
+def score_markers(gt: GroundTruth, capture: MarkerCapture) -> dict[str, float]:
+    """``markers.*`` (3D error, reconstruction, swaps, 2D tracking) and, with a skeleton fit, ``skeleton.*`` metrics."""
+    traj = capture.trajectories
+    idx = [traj.labels.index(n) for n in gt.marker_names]
+    est = traj.xyz[:, idx]
+    tracked = capture.tracks.predicted_xy[:, :, idx]
+    metrics = marker_metrics.summarize_markers(est, gt.markers_3d, gt.marker_visible, tracked_xy=tracked,
+                                               true_xy=gt.markers_2d, filled=traj.filled[:, idx])
+    fit = capture.skeleton
+    if fit is not None:
+        mask = fit.well_constrained() if hasattr(fit, "well_constrained") else None
+        hinge_idx = [fit.hinge_names.index(h) for h in gt.hinge_names]
+        est_ang = fit.joint_angles_rad[:, hinge_idx]
+        true_ang = gt.qpos[:, 7:]
+        m = None if mask is None else np.asarray(mask)[..., hinge_idx]
+        metrics["skeleton.joint_angle_rmse_deg"] = skeleton_metrics.joint_angle_rmse_deg(est_ang, true_ang, m)
+        metrics["skeleton.joint_angle_rmse_all_deg"] = skeleton_metrics.joint_angle_rmse_deg(est_ang, true_ang)
+        body_idx = [fit.body_names.index(b) for b in gt.joint_names]
+        metrics["skeleton.joint_position_rmse_mm"] = skeleton_metrics.joint_position_rmse_mm(
+            fit.joint_centres_m[:, body_idx], gt.joint_centres)
+    return metrics
