@@ -37,15 +37,14 @@ from typing import Iterable, Mapping
 import numpy as np
 from scipy import stats
 
+from mocap.types import LOST
+
 #: Reason codes of :class:`LabelLosses` (``reason`` and the per-frame ``flags``).
 REASON_NONE = 0
 REASON_LOST = 1
 REASON_FAR = 2
 REASON_OTHER = 3
 REASON_NAMES = {REASON_NONE: "", REASON_LOST: "lost", REASON_FAR: "far", REASON_OTHER: "other"}
-
-#: Lost status code of :class:`mocap.types.Tracks2D` (0 lost, 1 tracked, 2 coasting).
-STATUS_LOST = 0
 
 
 @dataclass(frozen=True)
@@ -130,7 +129,7 @@ def label_losses(
     meas = np.asarray(measured_xy, dtype=np.float64)
     stat = np.asarray(status)
 
-    is_lost = stat == STATUS_LOST
+    is_lost = stat == LOST
     err = np.linalg.norm(est - true_xy, axis=-1)  # (F, M) px, NaN while lost
     far = ~is_lost & ~(err <= radius_px)  # NaN estimate of a not-lost label is far too
     # Distances of each label's detection to every marker (F, M labels, M markers).

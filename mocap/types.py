@@ -7,7 +7,8 @@ Units: pixels for 2D, metres for 3D, seconds for time.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -51,6 +52,13 @@ class Detections:
         return cls(xy, np.full(len(xy), np.nan), np.full(len(xy), np.nan))
 
 
+#: Status of a label in one camera's frame (:attr:`Tracks2D.status`, a 2D tracker's ``status``):
+#: lost (not tracked), tracked with a detection, or coasting on its prediction.
+LOST: int = 0
+TRACKED: int = 1
+COASTING: int = 2
+
+
 @dataclass
 class Tracks2D:
     """Labelled 2D marker tracks of every camera.
@@ -64,7 +72,8 @@ class Tracks2D:
     predicted_xy : (F, C, M, 2) float
         Tracker estimate (posterior, or prediction while coasting); NaN when lost.
     status : (F, C, M) int8
-        0 = not tracked / lost, 1 = tracked with a detection, 2 = coasting on prediction.
+        :data:`LOST` (0, not tracked), :data:`TRACKED` (1, with a detection) or :data:`COASTING`
+        (2, on its prediction).
     camera_names : list[str], length C
     """
 
@@ -74,8 +83,9 @@ class Tracks2D:
     status: np.ndarray
     camera_names: list[str]
 
-    TRACKED: int = field(default=1, init=False, repr=False)
-    COASTING: int = field(default=2, init=False, repr=False)
+    LOST: ClassVar[int] = LOST
+    TRACKED: ClassVar[int] = TRACKED
+    COASTING: ClassVar[int] = COASTING
 
 
 @dataclass

@@ -24,23 +24,26 @@ from simbench.scenes.humanoid import BODY_NAMES
 Vec3 = tuple[float, float, float]
 
 
-class _Model(BaseModel):
+class FrozenModel(BaseModel):
+    """Base of every file schema of the bench (scenarios, sweeps, suites, baselines): an unknown
+    field is an error naming it, and a validated instance cannot change."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class BodyConfig(_Model):
+class BodyConfig(FrozenModel):
     height_m: float = Field(1.75, ge=1.2, le=2.2, description="standing height")
     proportions: dict[str, float] = Field(default_factory=dict, description="overrides of anthropometric fractions of height")
 
 
-class SubjectConfig(_Model):
+class SubjectConfig(FrozenModel):
     markers: Literal["plugin_gait_full", "sparse_joints", "upper_body", "none"] = "plugin_gait_full"
     shirt: bool = False
     suit_rgb: Vec3 = Field((0.04, 0.04, 0.05), description="linear albedo of the suit/clothes")
     skin_rgb: Vec3 = (0.55, 0.38, 0.30)
 
 
-class CaptureGapsConfig(_Model):
+class CaptureGapsConfig(FrozenModel):
     """Artificial gaps cut into a real capture (``motion.c3d`` / ``motion.trc``), seeded by ``seed``:
     ``fraction`` of the markers each lose ``runs`` runs of ``min_frames``..``max_frames``
     rendered frames (a marker in a gap is not rendered and is absent from the ground truth)."""
@@ -61,7 +64,7 @@ _CAPTURE_FIELDS = {"c3d": None, "trc": None, "labels": None, "up_axis": "auto", 
 _BVH_FIELDS = {"end": "error", "name_map": {}}  # omitted from the dump at their defaults, as the capture fields
 
 
-class MotionConfig(_Model):
+class MotionConfig(FrozenModel):
     clip: str = Field("wave_slow", description="procedural clip name, or 'bvh' to load `bvh`")
     bvh: str | None = Field(None, description="BVH file (relative to the scenario file)")
     start_s: float = Field(0.0, ge=0.0, description="offset into the clip (or the capture)")
@@ -129,7 +132,7 @@ class MotionConfig(_Model):
         return data
 
 
-class SensorConfig(_Model):
+class SensorConfig(FrozenModel):
     """The webcam's sensor and image processing (shared by all cameras)."""
 
     mode: Literal["visible", "ir"] = "visible"
@@ -152,7 +155,7 @@ class SensorConfig(_Model):
     electrons_per_unit: float = Field(4.0e5, gt=0.0, description="sensor sensitivity: e- per radiance unit per second")
 
 
-class CameraConfig(_Model):
+class CameraConfig(FrozenModel):
     name: str
     position: Vec3
     look_at: Vec3 = (0.0, 0.0, 1.0)
@@ -174,7 +177,7 @@ class CameraConfig(_Model):
         return self
 
 
-class RigConfig(_Model):
+class RigConfig(FrozenModel):
     """Generates ``count`` cameras on a circle around ``look_at``."""
 
     count: int = Field(4, ge=1, le=32)
@@ -189,7 +192,7 @@ class RigConfig(_Model):
     distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-class LightConfig(_Model):
+class LightConfig(FrozenModel):
     name: str
     kind: Literal["point", "directional"] = "point"
     position: Vec3 | None = None
@@ -207,13 +210,13 @@ class LightConfig(_Model):
         return self
 
 
-class LightEventConfig(_Model):
+class LightEventConfig(FrozenModel):
     t_s: float = Field(ge=0.0)
     light: str
     intensity: float = Field(ge=0.0, description="new intensity (0 = switched off)")
 
 
-class LightingConfig(_Model):
+class LightingConfig(FrozenModel):
     preset: Literal["office_fluorescent", "tungsten_lamp", "daylight_outdoor", "dim_gym", "mixed", "custom"] = "office_fluorescent"
     scale: float = Field(1.0, gt=0.0, description="multiplies every light (brighter/dimmer scene)")
     lights: tuple[LightConfig, ...] = ()
@@ -226,7 +229,7 @@ class LightingConfig(_Model):
         return self
 
 
-class SetConfig(_Model):
+class SetConfig(FrozenModel):
     floor: bool = True
     walls: bool = True
     room_size_m: float = Field(8.0, gt=2.0)
@@ -235,7 +238,7 @@ class SetConfig(_Model):
     clutter: int = Field(0, ge=0, le=50, description="number of coloured boxes around the room")
 
 
-class BallConfig(_Model):
+class BallConfig(FrozenModel):
     kind: Literal["ball"] = "ball"
     name: str = "ball"
     radius_m: float = Field(0.11, gt=0.0)
@@ -244,7 +247,7 @@ class BallConfig(_Model):
     rgb: Vec3 = (0.8, 0.35, 0.05)
 
 
-class BarrierConfig(_Model):
+class BarrierConfig(FrozenModel):
     kind: Literal["barrier"] = "barrier"
     name: str = "barrier"
     size_m: Vec3 = Field((0.05, 1.0, 1.2), description="thickness (x), width (y), height (z)")
@@ -253,7 +256,7 @@ class BarrierConfig(_Model):
     rgb: Vec3 = (0.25, 0.3, 0.5)
 
 
-class MovingConfig(_Model):
+class MovingConfig(FrozenModel):
     kind: Literal["moving"] = "moving"
     name: str = "mover"
     size_m: Vec3 = (0.3, 0.3, 0.3)
@@ -265,7 +268,7 @@ class MovingConfig(_Model):
 PropConfig = Annotated[Union[BallConfig, BarrierConfig, MovingConfig], Field(discriminator="kind")]
 
 
-class MarkerPipelineConfig(_Model):
+class MarkerPipelineConfig(FrozenModel):
     labelling: Literal["model", "tracker"] = Field(
         "model", description="'model': unlabelled 3D points labelled by the subject model from any frame, through gaps; "
         "'tracker': seed 000's T-pose first frame kept by the 2D `tracker` in each camera")
@@ -276,14 +279,14 @@ class MarkerPipelineConfig(_Model):
     solve_skeleton: bool = True
 
 
-class ShirtPipelineConfig(_Model):
+class ShirtPipelineConfig(FrozenModel):
     database: str | None = Field(None, description="pose database file (built by `simbench shirt build-db`)")
     database_size: int = Field(4000, ge=100)
     baseline: bool = True
     training_frames: int = Field(60, ge=2, description="frames of other takes the colour model and IK covariances are trained on")
 
 
-class CalibrationSceneConfig(_Model):
+class CalibrationSceneConfig(FrozenModel):
     """Calibration pictures taken before the take (``simbench/stage/calibration_scene.py``).
 
     A printed board is held still in ``n_views`` poses through the volume, each facing a
@@ -336,7 +339,7 @@ class CalibrationSceneConfig(_Model):
         return self
 
 
-class Scenario(_Model):
+class Scenario(FrozenModel):
     name: str
     description: str = ""
     seed: int = Field(0, ge=0)
@@ -373,10 +376,6 @@ class Scenario(_Model):
     @property
     def n_frames(self) -> int:
         return int(round(self.duration_s * self.fps))
-
-    def frame_times(self) -> np.ndarray:
-        """Timestamps ``(F,)`` in seconds: the middle of each frame's exposure."""
-        return np.arange(self.n_frames) / self.fps + 0.5 * self.sensor.exposure_ms / 1000.0
 
     def resolve_path(self, p: str) -> Path:
         path = Path(p)

@@ -19,6 +19,7 @@ from simbench.render import ids as idc
 from simbench.stage.rendering import render_frames
 from simbench.scenario import CaptureGapsConfig, load_scenario
 from simbench.stage.capture import load_capture_clip, seeded_gaps
+from simbench.stage.renderer import mid_exposure_times
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 QUALISYS = DATA / "c3d" / "Qualisys.c3d"
@@ -204,7 +205,7 @@ def test_resampling_missing_if_a_neighbour_used_is_missing(tmp_path):
     np.testing.assert_allclose(between[2:, 1, 0] - clip.shift_xy[0], [0.115, 0.125], atol=1e-12)
     assert np.isfinite(between[:, 0]).all()
     # The scenario's frames (mid-exposure 1 ms after k / 50 s) fall between samples 2k and 2k + 1.
-    frames = clip.positions_at(sc.frame_times())
+    frames = clip.positions_at(mid_exposure_times(sc.n_frames, sc.fps, sc.sensor.exposure_ms))
     assert np.isnan(frames[5, 1]).all() and np.isfinite(np.delete(frames[:, 1], 5, axis=0)).all()
 
 
@@ -214,7 +215,7 @@ def test_trc_scenario_y_up_to_z_up(tmp_path):
     clip = load_capture_clip(sc)
     assert clip.labels == ("RFHD", "LTOE", "LFHD")  # file order
     assert clip.source_up_axis == "y"
-    z = clip.positions_at(sc.frame_times())[..., 2]
+    z = clip.positions_at(mid_exposure_times(sc.n_frames, sc.fps, sc.sensor.exposure_ms))[..., 2]
     assert z[:, 0].min() > 1.4 and z[:, 1].max() < 0.3
 
 

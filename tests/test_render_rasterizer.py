@@ -18,7 +18,7 @@ def test_cached_static_set_with_dirty_rectangles_equals_a_full_redraw():
     bench = build_stage(sc)
     fr = bench.frame_renderer()
     raster = fr.raster
-    poses = bench.pose_at(sc.frame_times()[[0, 9, 18, 27]])
+    poses = bench.pose_at(bench.frame_times()[[0, 9, 18, 27]])
     lights, ambient = bench.lighting.lights_at(0.0), bench.lighting.ambient_rgb
     plan = [(0, 0, ("radiance", "ids")), (1, 0, ("radiance", "ids")), (0, 1, ("ids",)), (0, 2, ("radiance", "depth")),
             (2, 3, ("radiance", "ids", "depth")), (0, 3, ("radiance", "ids", "depth")), (1, 2, ("depth",)),

@@ -204,7 +204,7 @@ def _frames(sc, backend: str) -> np.ndarray:
     bench = build_stage(sc)
     fr = bench.frame_renderer()
     fr.set_sensor_backend(backend)
-    return np.stack([o.images for o in iterate_frames(fr, sc.frame_times(), bench.pose_at, sc.seed)])
+    return np.stack([o.images for o in iterate_frames(fr, bench.frame_times(), bench.pose_at, sc.seed)])
 
 
 @pytest.mark.parametrize("path,overrides", [

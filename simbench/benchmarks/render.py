@@ -76,8 +76,8 @@ def measure_renderer(sc: Scenario, n_cams: int, what: str, n_frames: int) -> tup
     from simbench.render.frames import frame_rng, plan_subframes, poses_at_times  # after the GL platform is set
     from simbench.stage.build import build_stage
 
-    times = sc.frame_times()[: n_frames + 3]
     stage = build_stage(sc)
+    times = stage.frame_times()[: n_frames + 3]
     stage.cameras = stage.cameras[:n_cams]
     fr = stage.frame_renderer()
     poses = stage.pose_at(times)
@@ -122,7 +122,7 @@ def measure_mujoco_renderer(sc: Scenario, n_frames: int) -> float:
     mjcam.distance = float(np.linalg.norm(d))
     mjcam.azimuth = float(np.degrees(np.arctan2(d[1], d[0]))) + 180.0
     mjcam.elevation = -float(np.degrees(np.arcsin(d[2] / np.linalg.norm(d))))
-    qpos = stage.motion.qpos(sc.frame_times()[: n_frames + 3])
+    qpos = stage.motion.qpos(stage.frame_times()[: n_frames + 3])
     nq = qpos.shape[1]
 
     def one(k: int) -> None:

@@ -46,11 +46,12 @@ from mocap.detection import DetectionParams, detect_markers
 from simbench.errors import ScenarioError
 from simbench.render import ids as idc
 from simbench.render.camera import VirtualCamera, cameras_from_scenario
-from simbench.render.frames import FrameRenderer, Pose, frame_rng, iterate_frames
-from simbench.render.geometry import MovingGeometry, board_buffers, set_geometry, wand_geometry
+from simbench.render.frames import Pose, frame_rng, iterate_frames
+from simbench.render.geometry import MovingGeometry, board_buffers, wand_geometry
 from simbench.render.lighting import Lighting
 from simbench.render.rasterizer import Rasterizer
 from simbench.scenario import CalibrationSceneConfig, Scenario
+from simbench.stage.renderer import build_frame_renderer, mid_exposure_times
 
 #: Linear albedo of the printed board's white paper and black ink.
 PAPER_ALBEDO = 0.80
@@ -434,11 +435,6 @@ class CalibrationScene:
         return out
 
 
-def _static_set(scenario: Scenario):
-    """The room: the same seed as ``Stage.frame_renderer``, so the same clutter as the take."""
-    return set_geometry(scenario.set, np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x5E7])))
-
-
 def _rigid_pose(prop_T: np.ndarray, marker_pos: np.ndarray | None = None) -> Pose:
     """A scene without a body: props at ``prop_T (P, 4, 4)``, markers at ``marker_pos (M, 3)`` (also the blur probes)."""
     m = np.zeros((0, 3)) if marker_pos is None else marker_pos
@@ -460,8 +456,8 @@ def render_board_views(scenario: Scenario, cameras: list[VirtualCamera], lightin
     albedo, layout = board_albedo_texture(spec)
     buf = board_buffers(layout.size_m, layout.origin_m, cfg.board_thickness_m, idc.BOARD)
     moving = MovingGeometry(buf, [("prop", 0, slice(0, len(buf.positions)))])
-    renderer = FrameRenderer(cameras, sensor, scenario.fps, lighting, _static_set(scenario), moving, 0, 0.0,
-                             rasterizer=rasterizer)
+    renderer = build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, moving,
+                                    rasterizer=rasterizer)
     renderer.raster.set_texture(albedo)
     T = poses.transforms()
     V, C = poses.n_views, len(cameras)
@@ -504,9 +500,9 @@ def render_wand(scenario: Scenario, cameras: list[VirtualCamera], lighting: Ligh
     cfg = scenario.calibration_scene
     sensor = scenario.sensor.model_copy(update={"mode": "ir"})
     geo = wand_geometry(motion.offsets_m, cfg.wand_marker_radius_m, WAND_STICK_RADIUS_M)
-    renderer = FrameRenderer(cameras, sensor, scenario.fps, lighting, _static_set(scenario), geo, 3,
-                             cfg.wand_marker_radius_m, rasterizer=rasterizer)
-    times = np.arange(n_frames) / scenario.fps + 0.5 * sensor.exposure_ms / 1000.0
+    renderer = build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, geo, 3,
+                                    cfg.wand_marker_radius_m, rasterizer=rasterizer)
+    times = mid_exposure_times(n_frames, scenario.fps, sensor.exposure_ms)
 
     def pose_at(ts: np.ndarray) -> list[Pose]:
         pts = motion.points(ts)

@@ -37,6 +37,7 @@ from simbench.scenes.humanoid import NQ, tpose_qpos
 from simbench.scenes.motions import Motion
 from simbench.scenes.scene import build_scene
 from simbench.scenes.simulation import SceneStates
+from simbench.stage.renderer import mid_exposure_times
 from simbench.stage.stage import Stage, body_params, make_props
 
 __all__ = ["CaptureStage", "PARK_HEIGHT_M", "load_capture_clip", "seeded_gaps", "look_at_point"]
@@ -125,7 +126,7 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
                             f"the window motion.start_s + motion.speed * duration_s = {end_s:.3f} s runs past the end "
                             f"of {given} ({capture_s:.3f} s of capture at {rate:g} Hz); shorten it or start earlier")
     F = scenario.n_frames
-    frame_times = scenario.frame_times()
+    frame_times = mid_exposure_times(scenario.n_frames, scenario.fps, scenario.sensor.exposure_ms)
     provisional = CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, np.zeros((F, len(names)), bool),
                               np.zeros(2), Path(given))
     at_frames = provisional.file_positions_at(frame_times)  # (F, M, 3)
@@ -216,5 +217,5 @@ class CaptureStage(Stage):
     def capture_reference(self) -> CaptureReference:
         """The capture's labelled trajectories at the frame times (what a user's subject
         calibration of this marker set gives): see :class:`CaptureReference`."""
-        times = self.scenario.frame_times()
+        times = self.frame_times()
         return CaptureReference(self.clip.labels, self.clip.file_positions_at(times), times)

@@ -83,7 +83,7 @@ def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None =
     renderer = bench.frame_renderer()
     outputs: list[FrameOutput] = []
     frames = []
-    for out in iterate_frames(renderer, sc.frame_times(), bench.pose_at, sc.seed):
+    for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, sc.seed):
         if on_frame is not None:
             on_frame(out)
         if keep_frames:

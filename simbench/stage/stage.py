@@ -18,8 +18,9 @@ from simbench.errors import ScenarioError
 from simbench.render import ids as idc
 from simbench.render.camera import VirtualCamera, cameras_from_scenario
 from simbench.render.frames import FrameRenderer, Pose
-from simbench.render.geometry import moving_geometry, set_geometry
+from simbench.render.geometry import moving_geometry
 from simbench.render.lighting import Lighting
+from simbench.render.rasterizer import Rasterizer
 from simbench.scenario import BallConfig, BarrierConfig, MovingConfig, Scenario
 from simbench.scenes.anthropometry import BodyParams
 from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES
@@ -28,6 +29,7 @@ from simbench.scenes.motions import Motion, make_motion
 from simbench.scenes.props import BallProp, BarrierProp, MovingProp
 from simbench.scenes.scene import Scene, build_scene
 from simbench.scenes.simulation import SceneStates, simulate
+from simbench.stage.renderer import build_frame_renderer, mid_exposure_times
 
 
 def body_params(scenario: Scenario) -> BodyParams:
@@ -152,15 +154,19 @@ class Stage:
         return out
 
     # ------------------------------------------------------------------ render
-    def frame_renderer(self, rasterizer=None) -> FrameRenderer:
+    def frame_times(self) -> np.ndarray:
+        """Timestamps ``(F,)`` s of the take's frames: the middle of each exposure."""
         sc = self.scenario
-        rng = np.random.default_rng(np.random.SeedSequence([sc.seed, 0x5E7]))
-        static = set_geometry(sc.set, rng)
+        return mid_exposure_times(sc.n_frames, sc.fps, sc.sensor.exposure_ms)
+
+    def frame_renderer(self, rasterizer: Rasterizer | None = None) -> FrameRenderer:
+        """The take's renderer: the scenario's room, sensor and lights; the body surface, markers and props moving."""
+        sc = self.scenario
         prop_meshes = [(p.mesh(), np.asarray(p.rgb, float), idc.PROP_BASE + k) for k, p in enumerate(self.scene.props)]
         body_index = {name: self.scene.body_id(name) for name in BODY_NAMES}
         moving = moving_geometry(self.scene.surface_parts, body_index, len(self.marker_names), prop_meshes, MARKER_RADIUS_M)
-        return FrameRenderer(self.cameras, sc.sensor, sc.fps, self.lighting, static, moving,
-                             len(self.marker_names), MARKER_RADIUS_M, rasterizer=rasterizer)
+        return build_frame_renderer(self.cameras, sc.sensor, sc.fps, self.lighting, sc.set, sc.seed, moving,
+                                    len(self.marker_names), MARKER_RADIUS_M, rasterizer=rasterizer)
 
     @property
     def hinge_names(self) -> list[str]:

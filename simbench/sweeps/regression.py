@@ -38,14 +38,14 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
-from simbench.scenario import load_scenario, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, load_scenario, validation_error_to_scenario_error
 from simbench.sweeps.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
 WORSE = ("higher", "lower", "either")
@@ -60,11 +60,7 @@ RUN_ROW = "(run)"
 EXIT_PASS, EXIT_REGRESSION, EXIT_COULD_NOT_RUN = 0, 1, 3
 
 
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class Tolerance(_Model):
+class Tolerance(FrozenModel):
     worse: Literal["higher", "lower", "either"] = Field(description="direction that counts as a regression")
     abs: float = Field(0.0, ge=0.0, description="allowed absolute change")
     rel: float = Field(0.0, ge=0.0, description="allowed change as a fraction of |baseline|")
@@ -84,7 +80,7 @@ def _flat(v):
     return flatten_dotted(v) if isinstance(v, dict) else v
 
 
-class SuiteScenario(_Model):
+class SuiteScenario(FrozenModel):
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
     file: str
     set: dict[str, Any] = Field(default_factory=dict)
@@ -95,7 +91,7 @@ class SuiteScenario(_Model):
         return _flat(v)
 
 
-class Suite(_Model):
+class Suite(FrozenModel):
     description: str = ""
     set: dict[str, Any] = Field(default_factory=dict)
     scenarios: list[SuiteScenario] = Field(min_length=1)
@@ -115,7 +111,7 @@ class Suite(_Model):
         return self
 
 
-class SuitesSpec(_Model):
+class SuitesSpec(FrozenModel):
     tolerances: dict[str, Tolerance] = Field(default_factory=dict)
     suites: dict[str, Suite] = Field(min_length=1)
 

@@ -64,22 +64,18 @@ from typing import Any, Callable, Iterator, Literal
 
 import duckdb
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
-from simbench.scenario import Scenario, load_scenario, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, Scenario, load_scenario, validation_error_to_scenario_error
 
 VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
                     "pin", "pyrender2", "PyOpenGL", "duckdb", "dask", "distributed")
 
 
 # ---------------------------------------------------------------------------- sweep file
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
 def flatten_dotted(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """``{"sensor": {"exposure_ms": 4}}`` -> ``{"sensor.exposure_ms": 4}`` (TOML's unquoted dotted keys)."""
     out: dict[str, Any] = {}
@@ -92,7 +88,7 @@ def flatten_dotted(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-class Factor(_Model):
+class Factor(FrozenModel):
     """One swept factor: ``values`` of a field, named ``levels`` (several fields each), or a ``range``."""
 
     field: str | None = Field(None, description="dotted scenario field, e.g. sensor.exposure_ms")
@@ -159,7 +155,7 @@ def display_value(v: object) -> object:
     return json.dumps(v, separators=(",", ":"), sort_keys=True, default=str)
 
 
-class SweepSpec(_Model):
+class SweepSpec(FrozenModel):
     name: str = Field(pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
     scenario: str = Field(description="base scenario TOML, relative to the sweep file")
