@@ -16,7 +16,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import InputFileError
-from simbench.scenes.bvh import load_bvh, map_bvh_joints, retarget_bvh, retarget_bvh_keys
+from simbench.scenes.bvh import retarget_bvh, retarget_bvh_keys
+from simbench.scenes.bvh_file import load_bvh
+from simbench.scenes.bvh_mapping import map_bvh_joints
 from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES, BodyParams
 from simbench.scenes.motions import HumanoidKinematics, make_motion
 

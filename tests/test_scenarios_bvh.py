@@ -16,7 +16,8 @@ from simbench.errors import ScenarioError
 from simbench.sweeps.regression import load_suites
 from simbench.render.camera import cameras_from_scenario
 from simbench.scenario import load_scenario
-from simbench.scenes.bvh import load_bvh, retarget_bvh, retarget_bvh_keys
+from simbench.scenes.bvh import retarget_bvh, retarget_bvh_keys
+from simbench.scenes.bvh_file import load_bvh
 from simbench.scenes.motions import HumanoidKinematics
 
 REPO = Path(__file__).resolve().parents[1]

@@ -25,6 +25,7 @@ from simbench.render.contact_sheet import contact_sheet
 from simbench.render.frames import FrameOutput, iterate_frames
 from simbench.render.video import Mp4Writer
 from simbench.scenario import Scenario
+from simbench.scenes.humanoid import BODY_NAMES
 
 # A marker counts as visible in a camera when it is inside the image and at least this
 # fraction of its projected area is unoccluded in the id render. Below it the blob's
@@ -56,8 +57,6 @@ def _ground_truth(bench: Stage, outputs: list[FrameOutput], keep_ids: bool) -> G
     P = len(bench.prop_names)
     prop_poses = np.stack([st.prop_poses[n] for n in bench.prop_names], axis=1) if P else np.zeros((F, 0, 4, 4))
     light = np.stack([bench.lighting.intensities_at(float(t)) for t in times]) if F else np.zeros((0, len(bench.lighting.names)))
-    from simbench.scenes.humanoid import BODY_NAMES
-
     gt = GroundTruth(
         times=times, camera_names=[c.name for c in cams],
         K=np.stack([c.K for c in cams]), dist=np.stack([c.dist for c in cams]),

@@ -25,7 +25,9 @@ from simbench.scenario import BallConfig, BarrierConfig, MovingConfig, Scenario
 from simbench.scenes.anthropometry import BodyParams
 from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES
 from simbench.scenes.markers import MARKER_RADIUS_M
-from simbench.scenes.motions import Motion, make_motion
+from simbench.scenes.bvh import retarget_bvh_keys
+from simbench.scenes.bvh_file import load_bvh
+from simbench.scenes.motions import MOTIONS, Motion, make_motion
 from simbench.scenes.props import BallProp, BarrierProp, MovingProp
 from simbench.scenes.scene import Scene, build_scene
 from simbench.scenes.simulation import SceneStates, simulate
@@ -67,8 +69,6 @@ def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.
     if m.clip == "bvh":
         clip = _bvh_motion(scenario, params, needed)
     else:
-        from simbench.scenes.motions import MOTIONS
-
         if m.clip not in MOTIONS:
             raise ScenarioError(where, "motion.clip", m.clip, f"choose one of {sorted(MOTIONS)} or 'bvh'")
         clip = make_motion(m.clip, params, needed + 0.1, rng=None)
@@ -85,8 +85,6 @@ def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.
 
 def _bvh_motion(scenario: Scenario, params: BodyParams, needed_s: float) -> Motion:
     """Load and retarget the scenario's BVH clip; check that it covers ``needed_s`` seconds."""
-    from simbench.scenes.bvh import load_bvh, retarget_bvh_keys
-
     m = scenario.motion
     where = scenario.source_dir or "<scenario>"
     path = scenario.resolve_path(m.bvh)
