@@ -172,11 +172,24 @@ def test_exit_codes_tell_a_regression_from_a_scenario_that_could_not_run(baselin
     assert rg.exit_code(rg.compare({"a": _rec("a", BASE), "b": _rec("b", BASE, h="bbb")}, baseline, PATTERNS)) == 0
 
 
-def test_check_shows_unrunnable_scenarios_as_error_rows_and_exits_3(tmp_path):
+@pytest.fixture
+def short_tmp():
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    d = Path(tempfile.mkdtemp(prefix="chk", dir="/tmp"))
+    yield d
+    shutil.rmtree(d, ignore_errors=True)
+
+
+def test_check_shows_unrunnable_scenarios_as_error_rows_and_exits_3(short_tmp):
     """A suite entry whose file is missing or has a bad field is its own row, not an exit-2 abort."""
     from typer.testing import CliRunner
 
     from simbench.cli import app
+
+    tmp_path = short_tmp  # the table is 160 columns wide off a terminal: pytest-xdist's long tmp paths wrapped the row
 
     (tmp_path / "bad.toml").write_text('name = "bad"\n[lighting]\npreset = "custom"\n')
     (tmp_path / "suites.toml").write_text(

@@ -107,9 +107,11 @@ def test_trimmed_copies_are_rows_of_the_shared_files(copy):
 def test_real_motion_suite_lists_the_bvh_scenarios_ci_sized():
     suites = load_suites(SCENARIOS / "suites.toml")
     runs = suites.runs("real_motion")
-    assert {r.factors["scenario"] for r in runs} == {p.stem for p in REAL_MOTION}
+    names = {r.factors["scenario"] for r in runs}
+    assert {p.stem for p in REAL_MOTION} <= names  # every BVH scenario, beside the C3D and TRC captures
+    assert {p.stem for p in SCENARIOS.glob("c3d_*.toml")} | {p.stem for p in SCENARIOS.glob("trc_*.toml")} <= names
     for r in runs:
-        assert (r.scenario.rig.count, r.scenario.duration_s, r.scenario.sensor.antialias) == (4, 1.5, 1)
+        assert (r.scenario.duration_s, r.scenario.sensor.antialias) == (0.9, 1)
 
 
 # ----------------------------------------------------------------------------- motion.end
