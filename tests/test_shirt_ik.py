@@ -9,7 +9,7 @@ import pytest
 from mocap.calibration import Camera
 from mocap.shirt.classify import crop_view
 from mocap.shirt.ik import Constraints, IKPriors, ShirtIK, train_priors
-from mocap.shirt.shirt_model import UPPER_NV
+from mocap.shirt.kinematics import UPPER_NV
 from simbench.render.camera import intrinsics_from_fov, look_at_rotation
 from simbench.scenes.anthropometry import BodyParams
 from simbench.pipelines.shirt_database import shirt_model

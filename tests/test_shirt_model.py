@@ -8,7 +8,9 @@ import pytest
 import trimesh
 
 from mocap.calibration import Camera
-from mocap.shirt.shirt_model import UPPER_BODY_JOINTS, CropView, look_at_view, rasterise_faces
+from mocap.shirt.kinematics import UPPER_BODY_JOINTS
+from mocap.shirt.shirt_model import CropView, look_at_view
+from mocap.shirt.zbuffer import rasterise_faces
 from simbench.stage.build import build_stage
 from simbench.render import ids as idc
 from simbench.stage.rendering import render_frames

@@ -70,7 +70,7 @@ def test_mocap_shirt_cli_tracks_the_rendered_videos(shirt_run, tmp_path):
     from typer.testing import CliRunner
 
     from mocap.cli import app
-    from mocap.shirt.shirt_model import UPPER_BODY_JOINTS
+    from mocap.shirt.kinematics import UPPER_BODY_JOINTS
     from simbench.stage.ground_truth import load_ground_truth
 
     result, out, _ = shirt_run

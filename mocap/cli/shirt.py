@@ -94,7 +94,7 @@ def shirt(
     from mocap.shirt.ik import IKPriors
     from mocap.shirt.pipeline import STAGES, ShirtPipelineParams, ShirtTracker, initial_white_balance
     from mocap.shirt.pose_database import PoseDatabase
-    from mocap.shirt.shirt_model import UPPER_BODY_JOINTS
+    from mocap.shirt.kinematics import UPPER_BODY_JOINTS
 
     cal = Calibration.load(calibration)
     paths = order_videos_by_camera(list(videos), cal.names)

@@ -7,7 +7,9 @@ One module per stage of the per-frame pipeline (:mod:`mocap.shirt.pipeline` runs
 * :mod:`~mocap.shirt.colour_model` — Gaussian colour model, white balance ``W``, reference illuminations;
 * :mod:`~mocap.shirt.classify` — Gaussian (step 1) and pose-assisted (step 3) classification, patch centroids;
 * :mod:`~mocap.shirt.pose_database` — tiny 40x40 id maps, nearest neighbours (faiss), blending (step 2);
-* :mod:`~mocap.shirt.shirt_model` — shirt meshes, Pinocchio kinematics, CPU z-buffer;
+* :mod:`~mocap.shirt.shirt_model` — the shirt posed and rasterised into id maps, from its meshes
+  (:mod:`~mocap.shirt.geometry`), the upper body's Pinocchio kinematics (:mod:`~mocap.shirt.kinematics`)
+  and a CPU z-buffer (:mod:`~mocap.shirt.zbuffer`);
 * :mod:`~mocap.shirt.ik` — centroid IK with trained covariances (step 4; the 6-DoF fit of step 2).
 
 Nothing here imports the simulator: the shirt's geometry and the humanoid's MJCF come

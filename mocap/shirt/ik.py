@@ -37,7 +37,7 @@ import pinocchio as pin
 
 from mocap.calibration import Camera
 from mocap.errors import InputFileError, MocapInputError
-from mocap.shirt.shirt_model import UPPER_NV, ShirtKinematics
+from mocap.shirt.kinematics import ShirtKinematics, UPPER_NV
 
 __all__ = ["Constraints", "Silhouette", "IKPriors", "ShirtIK", "IKResult", "train_priors"]
 

@@ -73,7 +73,8 @@ from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel, ReferenceIllum
 from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation, search_shirt
 from mocap.shirt.ik import Constraints, IKPriors, ShirtIK, Silhouette
 from mocap.shirt.pose_database import Neighbours, PoseDatabase, TinyMap, blend_poses, blend_weights, tiny_id_map
-from mocap.shirt.shirt_model import UPPER_NQ, UPPER_NV, CropView, ShirtModel, look_at_view
+from mocap.shirt.kinematics import UPPER_NQ, UPPER_NV
+from mocap.shirt.shirt_model import CropView, ShirtModel, look_at_view
 
 __all__ = [
     "STAGES",

@@ -1,7 +1,7 @@
 """The pose database of step 2: tiny 40x40 id maps of upper-body poses and their nearest-neighbour search.
 
 Each entry is an upper-body pose (the 11 hinges of
-:data:`mocap.shirt.shirt_model.UPPER_HINGES` and the root's orientation in a *view
+:data:`mocap.shirt.kinematics.UPPER_HINGES` and the root's orientation in a *view
 frame*: x right, y down, z away from the viewer) rasterised orthographically and
 normalised by :func:`tiny_id_map`: the square around the shirt's pixels is resampled
 to 40x40 cells holding a colour id (or background).  The same function normalises the
@@ -45,7 +45,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import InputFileError
-from mocap.shirt.shirt_model import UPPER_HINGES, ShirtGeometry
+from mocap.shirt.geometry import ShirtGeometry
+from mocap.shirt.kinematics import UPPER_HINGES
 
 __all__ = [
     "TINY_SIZE",

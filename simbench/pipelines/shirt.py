@@ -32,7 +32,8 @@ from mocap.shirt.classify import crop_image
 from mocap.shirt.colour_model import NOT_SHIRT, ColourModel
 from mocap.shirt.pipeline import STAGES, ShirtPipelineParams, ShirtTracker
 from mocap.shirt.pose_database import PoseDatabase
-from mocap.shirt.shirt_model import UPPER_BODY_JOINTS, ShirtModel
+from mocap.shirt.kinematics import UPPER_BODY_JOINTS
+from mocap.shirt.shirt_model import ShirtModel
 from simbench.pipelines.shirt_database import PoseSampling, ProgressFactory, database_key, default_database_path, ensure_database
 from simbench.pipelines.shirt_inputs import colour_labels, scribble_labels, session_inputs
 from simbench.pipelines.shirt_training import ShirtTraining, ensure_training

@@ -35,7 +35,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
-from mocap.shirt.shirt_model import SHIRT_BODIES, ShirtGeometry, ShirtModel
+from mocap.shirt.geometry import SHIRT_BODIES, ShirtGeometry
+from mocap.shirt.shirt_model import ShirtModel
 from simbench.errors import SimbenchInputError
 from simbench.scenes.anthropometry import BodyParams
 from simbench.scenes.humanoid import humanoid_mjcf

@@ -22,7 +22,8 @@ from mocap.shirt.colour_model import ColourModel, train_colour_model
 from mocap.shirt.ik import IKPriors, train_priors
 from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
 from mocap.shirt.pose_database import PoseDatabase
-from mocap.shirt.shirt_model import UPPER_NV, ShirtModel
+from mocap.shirt.kinematics import UPPER_NV
+from mocap.shirt.shirt_model import ShirtModel
 from simbench.errors import SimbenchInputError
 from simbench.pipelines.shirt_database import cache_dir
 from simbench.pipelines.shirt_inputs import colour_labels, session_inputs
