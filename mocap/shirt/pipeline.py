@@ -343,6 +343,17 @@ def initial_white_balance(image: np.ndarray, labels: np.ndarray, colour_model: C
     return W
 
 
+@dataclass(frozen=True)
+class _Crop:
+    """One camera's crop after step 1: linear RGB ``(h, w, 3)``, foreground mask ``(h, w)`` (or
+    None), and its foreground pixels' distances to the shirt colours and to the other colours."""
+
+    linear: np.ndarray
+    foreground: np.ndarray | None
+    distances: np.ndarray
+    other_distances: np.ndarray | None
+
+
 class ShirtTracker:
     """Runs the pipeline frame after frame for a rig of calibrated cameras.
 
@@ -593,18 +604,13 @@ class ShirtTracker:
         C = len(self.cameras)
         if len(images) != C:
             raise MocapInputError(f"ShirtTracker.process: {len(images)} images for {C} cameras")
-        K = self.colours.n_colours
         T = {s: 0.0 for s in STAGES}
         clock = time.perf_counter
         obs = [CameraObservation() for _ in range(C)]
-        nan_q = np.full(UPPER_NQ, np.nan)
 
         # 0. background subtraction
         t = clock()
-        masks = []
-        for ci, img in enumerate(images):
-            bg = self.backgrounds[ci]
-            masks.append(bg.apply(img) if bg is not None else None)
+        masks = [bg.apply(img) if bg is not None else None for bg, img in zip(self.backgrounds, images)]
         T["background"] = (clock() - t) * 1e3
 
         # histogram search
@@ -616,74 +622,94 @@ class ShirtTracker:
         # 1. crop, white balance, Gaussian classification (+ reference illuminations)
         t = clock()
         self._poor = [False] * C
-        lin, fgs, dists, others = [None] * C, [None] * C, [None] * C, [None] * C
-        for ci, img in enumerate(images):
-            loc = obs[ci].location
-            if loc is None:
-                continue
-            side = (p.crop_factor if self.q_prev is not None else p.crop_factor_first) * loc.s
-            if self._prev_box[ci] is not None:
-                lo, hi = self._prev_box[ci]
-                reach = np.max(np.abs(np.array([lo, hi]) - [loc.x, loc.y]))
-                side = max(side, 2.0 * reach * p.crop_margin)
-            limit = 2.0 * max(img.shape[:2])
-            side = min(side, limit)
-            full = BackgroundModel.full_size(masks[ci], img.shape[1], img.shape[0]) if masks[ci] is not None else None
-            for attempt in range(2):
-                view = crop_view(loc.x, loc.y, side, p.work_size)
-                work = crop_image(img, view)
-                lin[ci] = SRGB_TO_LINEAR[work]
-                if full is not None:
-                    fgs[ci] = crop_image(full.view(np.uint8), view, cv2.INTER_NEAREST) > 0
-                if attempt == 0 and side < limit:
-                    # shirt touching the crop's border: a limb reaches out of it (e.g. one the
-                    # previous pose lost); look again over a larger square, once.  Only the
-                    # border band decides this, and only it is classified here
-                    band = _border_band(view.size) if fgs[ci] is None else _border_band(view.size) & fgs[ci]
-                    probe = classify_gaussian(lin[ci], self.colours, self.W[ci], band, p.gaussian_threshold, None, self.other)
-                    if _touches_border(probe.colour, min_pixels=p.crop_growth_min_pixels):
-                        side = min(side * p.crop_growth, limit)
-                        continue
-                obs[ci].pixels = foreground_pixels(lin[ci], fgs[ci])
-                dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
-                others[ci] = other_distance(obs[ci].pixels[1], self.other, self.W[ci])
-                cls = classify_gaussian(lin[ci], self.colours, self.W[ci], fgs[ci], p.gaussian_threshold, dists[ci], self.other,
-                                        obs[ci].pixels, others[ci])
-                break
-            if self._first_fraction[ci] is None:
-                self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
-            poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]
-            self._poor[ci] = poor
-            if p.adaptive_white_balance and poor and len(self.references[ci]) > 1:
-                i, alt = best_reference(lin[ci], self.colours, self.references[ci].matrices, fgs[ci], p.gaussian_threshold,
-                                        self.other)
-                if alt.classified_fraction > cls.classified_fraction:
-                    self.W[ci] = self.references[ci].matrices[i].copy()
-                    cls = alt
-                    dists[ci] = self.colours.distances(obs[ci].pixels[1], self.W[ci])
-                    others[ci] = other_distance(obs[ci].pixels[1], self.other, self.W[ci])
-            obs[ci].view, obs[ci].step1, obs[ci].W, obs[ci].foreground = view, cls, self.W[ci].copy(), fgs[ci]
+        crops = [self._classify_gaussian(ci, img, masks[ci], obs[ci]) for ci, img in enumerate(images)]
+        lin = [c.linear if c is not None else None for c in crops]
         T["classify"] = (clock() - t) * 1e3
 
         # 2a. database search per camera
         t = clock()
-        for ci in range(C):
-            o = obs[ci]
-            if o.step1 is None:
-                continue
-            o.tiny = tiny_id_map(_without_thin_bits(o.step1.colour), K)
-            if o.tiny is None:
-                continue
-            o.neighbours = self.db.search(o.tiny.ids, p.neighbours)
-            o.ray_rotation = self._ray_rotation(ci, o.view.to_image(o.tiny.centre))
+        self._search_database(obs)
         T["database"] = (clock() - t) * 1e3
 
         # 2b. blend across cameras and fit the root (6 DoF)
         t = clock()
         seen = [ci for ci in range(C) if obs[ci].neighbours is not None]
-        if not seen:
-            T["global_fit"] = (clock() - t) * 1e3
+        q_b = self._blend_and_fit(obs, seen) if seen else None
+        T["global_fit"] = (clock() - t) * 1e3
+        if q_b is None:
             return self._failed(T, obs, lin)
+
+        # 3. pose-assisted classification, patch centroids, constraints
+        t = clock()
+        prior_pose, cons, fractions = self._classify_pose_assisted(q_b, obs, seen, crops)
+        T["pose_assisted"] = (clock() - t) * 1e3
+        est = FrameEstimate(np.full(UPPER_NQ, np.nan), q_b, fractions, T, obs)
+        est.q_prior = prior_pose
+        return est, cons, lin
+
+    def _classify_gaussian(self, ci: int, img: np.ndarray, mask: np.ndarray | None, o: CameraObservation) -> _Crop | None:
+        """Step 1 in camera ``ci``: crop around the shirt (grown once when the shirt touches the
+        crop's border), white-balance, classify; with a poor classification (the light changed)
+        try the reference illuminations. Fills ``o``; None when the shirt was not found."""
+        p = self.params
+        loc = o.location
+        if loc is None:
+            return None
+        side = (p.crop_factor if self.q_prev is not None else p.crop_factor_first) * loc.s
+        if self._prev_box[ci] is not None:
+            lo, hi = self._prev_box[ci]
+            reach = np.max(np.abs(np.array([lo, hi]) - [loc.x, loc.y]))
+            side = max(side, 2.0 * reach * p.crop_margin)
+        limit = 2.0 * max(img.shape[:2])
+        side = min(side, limit)
+        full = BackgroundModel.full_size(mask, img.shape[1], img.shape[0]) if mask is not None else None
+        fg = None
+        for attempt in range(2):
+            view = crop_view(loc.x, loc.y, side, p.work_size)
+            lin = SRGB_TO_LINEAR[crop_image(img, view)]
+            if full is not None:
+                fg = crop_image(full.view(np.uint8), view, cv2.INTER_NEAREST) > 0
+            if attempt == 0 and side < limit:
+                # shirt touching the crop's border: a limb reaches out of it (e.g. one the
+                # previous pose lost); look again over a larger square, once.  Only the
+                # border band decides this, and only it is classified here
+                band = _border_band(view.size) if fg is None else _border_band(view.size) & fg
+                probe = classify_gaussian(lin, self.colours, self.W[ci], band, p.gaussian_threshold, None, self.other)
+                if _touches_border(probe.colour, min_pixels=p.crop_growth_min_pixels):
+                    side = min(side * p.crop_growth, limit)
+                    continue
+            o.pixels = foreground_pixels(lin, fg)
+            dist = self.colours.distances(o.pixels[1], self.W[ci])
+            other = other_distance(o.pixels[1], self.other, self.W[ci])
+            cls = classify_gaussian(lin, self.colours, self.W[ci], fg, p.gaussian_threshold, dist, self.other, o.pixels, other)
+            break
+        if self._first_fraction[ci] is None:
+            self._first_fraction[ci] = max(cls.classified_fraction, 1e-3)
+        poor = cls.classified_fraction < p.poor_fraction * self._first_fraction[ci]
+        self._poor[ci] = poor
+        if p.adaptive_white_balance and poor and len(self.references[ci]) > 1:
+            i, alt = best_reference(lin, self.colours, self.references[ci].matrices, fg, p.gaussian_threshold, self.other)
+            if alt.classified_fraction > cls.classified_fraction:
+                self.W[ci] = self.references[ci].matrices[i].copy()
+                cls = alt
+                dist = self.colours.distances(o.pixels[1], self.W[ci])
+                other = other_distance(o.pixels[1], self.other, self.W[ci])
+        o.view, o.step1, o.W, o.foreground = view, cls, self.W[ci].copy(), fg
+        return _Crop(lin, fg, dist, other)
+
+    def _search_database(self, obs: list[CameraObservation]) -> None:
+        """Step 2a: each camera's tiny id map and its nearest database entries."""
+        for ci, o in enumerate(obs):
+            if o.step1 is None:
+                continue
+            o.tiny = tiny_id_map(_without_thin_bits(o.step1.colour), self.colours.n_colours)
+            if o.tiny is None:
+                continue
+            o.neighbours = self.db.search(o.tiny.ids, self.params.neighbours)
+            o.ray_rotation = self._ray_rotation(ci, o.view.to_image(o.tiny.centre))
+
+    def _blend_and_fit(self, obs: list[CameraObservation], seen: list[int]) -> np.ndarray | None:
+        """Step 2b: the neighbours of every camera blended into one pose, its root fitted (6 DoF)."""
         hs, Rs, ws = [], [], []
         for ci in seen:
             nb = obs[ci].neighbours
@@ -692,20 +718,22 @@ class ShirtTracker:
             Rs.append(np.einsum("ij,njk->nik", to_world, nb.view_rotation))
             ws.append(blend_weights(nb.distance) / len(seen))
         hinges_b, R_b, _ = blend_poses(np.concatenate(hs), np.concatenate(Rs), np.concatenate(ws))
-        q_b = self._global_fit(obs, seen, hinges_b, R_b)
-        T["global_fit"] = (clock() - t) * 1e3
-        if q_b is None:
-            return self._failed(T, obs, lin)
+        return self._global_fit(obs, seen, hinges_b, R_b)
 
-        # 3. pose-assisted classification, patch centroids, constraints
-        t = clock()
+    def _classify_pose_assisted(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int],
+                                crops: list[_Crop | None]) -> tuple[np.ndarray, Constraints, np.ndarray]:
+        """Step 3: the prior pose, each camera's pose-assisted classification, silhouette and
+        patch-centroid constraints; returns the prior pose, the constraints and the classified fractions ``(C,)``."""
+        p = self.params
+        lin = [c.linear if c is not None else None for c in crops]
+        fgs = [c.foreground if c is not None else None for c in crops]
         prior_pose, renders = self._prior_pose(q_b, obs, seen, lin, fgs) if p.pose_prior else (q_b, {})
         parts = []
-        fractions = np.zeros(C)
+        fractions = np.zeros(len(obs))
         for ci in seen:
-            o = obs[ci]
+            o, crop = obs[ci], crops[ci]
             # the prior pose's id map at a reduced resolution: distance transforms and anchors
-            rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, lin[ci], fgs[ci])
+            rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, crop.linear, crop.foreground)
             if p.pose_prior:
                 # each colour's distance: the least over its patches (patches sorted by colour)
                 if self._colour_starts is not None:
@@ -714,8 +742,9 @@ class ShirtTracker:
                     cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
                                       for m in self._colour_members]) * np.float32(o.view.scale)
                 # C = 6 / s, s the side of the shirt's square (image pixels)
-                final = classify_pose_assisted(lin[ci], self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
-                                               fgs[ci], p.assisted_threshold, dists[ci], self.other, o.pixels, others[ci])
+                final = classify_pose_assisted(crop.linear, self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
+                                               crop.foreground, p.assisted_threshold, crop.distances, self.other, o.pixels,
+                                               crop.other_distances)
             else:
                 final = o.step1
             o.final = final
@@ -724,11 +753,7 @@ class ShirtTracker:
             cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend)
             o.n_constraints = len(cons)
             parts.append(cons)
-        cons = Constraints.concatenate(parts)
-        T["pose_assisted"] = (clock() - t) * 1e3
-        est = FrameEstimate(nan_q.copy(), q_b, fractions, T, obs)
-        est.q_prior = prior_pose
-        return est, cons, lin
+        return prior_pose, Constraints.concatenate(parts), fractions
 
     def _render_distances(self, q: np.ndarray, ci: int, o: CameraObservation, lin: np.ndarray, fg: np.ndarray | None):
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
