@@ -455,11 +455,39 @@ def initial_labels(
     if seed is None:
         raise ValueError("label initialisation needs detections in at least two cameras in the first frame")
     T = template.positions
-    centroid_xy = T[:, :2].mean(axis=0)
     gates = _gates(calibration, seed, params)
     maps = _cost_maps(und, calibration, gates)
+    hypotheses, costs = _coarse_search(T, seed, maps, calibration, params)
+    chosen = _distinct_best(hypotheses, costs, params)
+    scales = np.asarray(params.scales, dtype=np.float64)
+    bounds = (max(0.5, scales.min() - 0.05), min(2.0, scales.max() + 0.05)) if len(scales) > 1 else (float(scales[0]),) * 2
+    h, cost = min((_refine(cand, T, und, calibration, gates, maps, bounds) for cand in chosen), key=lambda r: r[1])
+    placement = Placement(float(h[0]), float(h[1]), float((h[2] + np.pi) % (2 * np.pi) - np.pi), float(h[3]))
+    placed = placement.apply(T)
+    index, pred = _assign_with_slack(dets, und, calibration, placed, gates, params)
+    _unlabel_ambiguous_views(index, und, pred, params)
+    xy = _assigned_pixels(dets, index)
+    # Final labels: drop views that disagree with the marker's 3D point.
+    tri = triangulate(xy, calibration, max_residual_px=params.max_residual_px)
+    good = np.isfinite(tri.points).all(axis=1)
+    inconsistent = good[None, :] & (index >= 0) & ~tri.used
+    index[inconsistent] = -1
+    xy[inconsistent] = np.nan
+    unsure = _swappable_markers(tri.points, good, placed, params)
+    index[:, unsure] = -1
+    xy[:, unsure] = np.nan
+    good &= ~unsure
+    points = np.where(good[:, None], tri.points, placed)
+    return LabelInit(list(template.names), index, xy, placement, points, cost / max(C * M, 1))
 
-    # Coarse search: every heading, a floor grid around the seed, a few scales.
+
+def _coarse_search(T: np.ndarray, seed: np.ndarray, maps, calibration: Calibration,
+                   params: LabelInitParams) -> tuple[np.ndarray, np.ndarray]:
+    """Every heading, a floor grid around ``seed``, a few scales: hypotheses ``(H, 4)`` (x, y,
+    heading, scale) and their coarse costs ``(H,)``. The template's centroid (not its origin)
+    goes to the grid point, whatever the heading."""
+    M = len(T)
+    centroid_xy = T[:, :2].mean(axis=0)
     headings = np.deg2rad(np.arange(0.0, 360.0, params.heading_step_deg))
     n_side = int(np.floor(params.search_radius_m / params.position_step_m + 1e-9))
     offs = np.arange(-n_side, n_side + 1) * params.position_step_m
@@ -467,7 +495,6 @@ def initial_labels(
     scales = np.asarray(params.scales, dtype=np.float64)
     Hh, Gp, Ss = np.meshgrid(headings, np.arange(gx.size), scales, indexing="ij")
     Hh, Gp, Ss = Hh.ravel(), Gp.ravel(), Ss.ravel()
-    # The template's centroid (not its origin) goes to the seed, whatever the heading.
     c, s = np.cos(Hh), np.sin(Hh)
     cx = Ss * (c * centroid_xy[0] - s * centroid_xy[1])
     cy = Ss * (s * centroid_xy[0] + c * centroid_xy[1])
@@ -478,12 +505,14 @@ def initial_labels(
     for i in range(0, Hh.size, chunk):
         sl = slice(i, i + chunk)
         costs[sl] = _coarse_costs(_place(T, X[sl], Y[sl], Hh[sl], Ss[sl]), maps, calibration)
+    return np.column_stack([X, Y, Hh, Ss]), costs
 
-    # Refine the best distinct hypotheses (distinct: > 1 grid step or heading step apart).
-    order = np.argsort(costs)
+
+def _distinct_best(hypotheses: np.ndarray, costs: np.ndarray, params: LabelInitParams) -> list[np.ndarray]:
+    """The ``refine_top`` best hypotheses that are distinct (more than 1.5 grid steps or heading steps apart)."""
     chosen: list[np.ndarray] = []
-    for k in order:
-        cand = np.array([X[k], Y[k], Hh[k], Ss[k]])
+    for k in np.argsort(costs):
+        cand = np.array(hypotheses[k])
         if all(
             np.hypot(*(cand[:2] - o[:2])) > 1.5 * params.position_step_m
             or abs((cand[2] - o[2] + np.pi) % (2 * np.pi) - np.pi) > 1.5 * np.deg2rad(params.heading_step_deg)
@@ -492,14 +521,18 @@ def initial_labels(
             chosen.append(cand)
         if len(chosen) >= params.refine_top:
             break
-    bounds = (max(0.5, scales.min() - 0.05), min(2.0, scales.max() + 0.05)) if len(scales) > 1 else (float(scales[0]),) * 2
-    h, cost = min((_refine(cand, T, und, calibration, gates, maps, bounds) for cand in chosen), key=lambda r: r[1])
-    placement = Placement(float(h[0]), float(h[1]), float((h[2] + np.pi) % (2 * np.pi) - np.pi), float(h[3]))
+    return chosen
 
-    # Per-marker slack: each camera's labels are re-assigned against the markers
-    # triangulated from the *other* cameras (independent of its own possible mistakes),
-    # with a tight gate where such a point exists and the slack gate otherwise.
-    placed = placement.apply(T)
+
+def _assign_with_slack(dets: Sequence[Detections], und: list[np.ndarray], calibration: Calibration, placed: np.ndarray,
+                       gates: np.ndarray, params: LabelInitParams) -> tuple[np.ndarray, np.ndarray]:
+    """Detection index ``(C, M)`` of every label and its predicted pixel ``(C, M, 2)``.
+
+    Per-marker slack: each camera's labels are re-assigned against the markers triangulated
+    from the *other* cameras (independent of its own possible mistakes), with a tight gate
+    where such a point exists and the slack gate otherwise.
+    """
+    C, M = len(calibration), len(placed)
     pred = np.stack([_project_pinhole(cam, placed) for cam in calibration])   # (C, M, 2)
     gate = np.repeat(1.5 * gates[:, None], M, axis=1)                          # (C, M)
     tight = max(params.min_gate_px, 2.0 * params.max_residual_px)
@@ -516,10 +549,14 @@ def initial_labels(
             ok &= np.linalg.norm(tri.points - placed, axis=1) < 2.0 * params.slack_m
             pred[cam_i] = _project_pinhole(cam, np.where(ok[:, None], tri.points, placed))
             gate[cam_i] = np.where(ok, tight, gates[cam_i])
-    # A detection about as close to another label's prediction as to its own is
-    # ambiguous (two markers nearly overlapping in that view): leave it unlabelled
-    # rather than risk a swap; the other views still give the marker.
-    for cam_i in range(C):
+    return index, pred
+
+
+def _unlabel_ambiguous_views(index: np.ndarray, und: list[np.ndarray], pred: np.ndarray, params: LabelInitParams) -> None:
+    """A detection about as close to another label's prediction as to its own is ambiguous (two
+    markers nearly overlapping in that view): leave it unlabelled (``index`` -1) rather than
+    risk a swap; the other views still give the marker."""
+    for cam_i in range(len(index)):
         has = np.flatnonzero(index[cam_i] >= 0)
         if has.size == 0:
             continue
@@ -530,20 +567,18 @@ def initial_labels(
         d[has, np.arange(has.size)] = np.inf
         ambiguous = d.min(axis=0) - own < params.ambiguity_margin_px
         index[cam_i, has[ambiguous]] = -1
-    xy = _assigned_pixels(dets, index)
-    # Final labels: drop views that disagree with the marker's 3D point.
-    tri = triangulate(xy, calibration, max_residual_px=params.max_residual_px)
-    good = np.isfinite(tri.points).all(axis=1)
-    inconsistent = good[None, :] & (index >= 0) & ~tri.used
-    index[inconsistent] = -1
-    xy[inconsistent] = np.nan
-    # Nearby markers whose first-frame arrangement fits swapped labels about as well
-    # as the true ones cannot be told apart by the template: unlabel them rather than
-    # risk a swap. With triangulated points P and placed template points T, the gain
-    # of the labels over the swap, relative to |Ta - Tb|^2, is (Pa - Pb).(Ta - Tb) when
-    # both are triangulated, and 1 + 2 (Pa - Ta).(Ta - Tb) / |Ta - Tb|^2 (a against an
-    # unobserved b, i.e. P_b = T_b) otherwise; 1 for a perfect T-pose.
-    P = np.where(good[:, None], tri.points, placed)
+
+
+def _swappable_markers(points: np.ndarray, good: np.ndarray, placed: np.ndarray, params: LabelInitParams) -> np.ndarray:
+    """``(M,)`` markers whose first-frame arrangement fits swapped labels about as well as the true ones.
+
+    The template cannot tell them apart: they are unlabelled rather than risk a swap. With
+    triangulated points P (``points``, ``good`` where triangulated) and placed template points
+    T, the gain of the labels over the swap, relative to |Ta - Tb|^2, is (Pa - Pb).(Ta - Tb)
+    when both are triangulated, and 1 + 2 (Pa - Ta).(Ta - Tb) / |Ta - Tb|^2 (a against an
+    unobserved b, i.e. P_b = T_b) otherwise; 1 for a perfect T-pose.
+    """
+    P = np.where(good[:, None], points, placed)
     dT = placed[:, None, :] - placed[None, :, :]
     ref = np.einsum("abk,abk->ab", dT, dT)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -553,12 +588,7 @@ def initial_labels(
     near = np.sqrt(ref) < 4.0 * params.slack_m
     ambiguous = near & good[:, None] & (gain < params.pair_ambiguity)
     np.fill_diagonal(ambiguous, False)
-    unsure = ambiguous.any(axis=1) | (ambiguous.any(axis=0) & good)
-    index[:, unsure] = -1
-    xy[:, unsure] = np.nan
-    good &= ~unsure
-    points = np.where(good[:, None], tri.points, placed)
-    return LabelInit(list(template.names), index, xy, placement, points, cost / max(C * M, 1))
+    return ambiguous.any(axis=1) | (ambiguous.any(axis=0) & good)
 
 
 def _assigned_pixels(dets: Sequence[Detections], index: np.ndarray) -> np.ndarray:
