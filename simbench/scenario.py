@@ -5,21 +5,35 @@ colour shirt), the motion, cameras and their sensor, lighting, props, duration,
 seed, and how the capture pipeline is configured. ``load_scenario`` turns any
 validation problem into one :class:`~simbench.errors.ScenarioError` naming the file,
 the field, the value and what is allowed.
+
+Names are checked against their registries when the scenario loads, before anything
+renders: the motion clip (:data:`simbench.scenes.motions.MOTIONS`), the marker set
+(:data:`simbench.scenes.markers.MARKER_SETS`), the body proportions
+(:class:`simbench.scenes.anthropometry.BodyParams`), the lighting preset and the lights
+its events switch (:data:`LIGHTING_PRESETS`), the tracker (:mod:`mocap.trackers`) and the
+ChArUco dictionary (:data:`mocap.calib.boards.ARUCO_DICTIONARIES`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import tomllib
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from types import MappingProxyType
+from typing import Annotated, Literal, Mapping, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_serializer, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
 
+from mocap.calib.boards import ARUCO_DICTIONARIES
+from mocap.errors import MocapInputError
+from mocap.trackers import get_tracker
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.scenes.humanoid import BODY_NAMES
+from simbench.scenes.anthropometry import BODY_NAMES, BodyParams
+from simbench.scenes.markers import MARKER_SETS
+from simbench.scenes.motions import MOTIONS
 
 Vec3 = tuple[float, float, float]
 
@@ -35,9 +49,26 @@ class BodyConfig(FrozenModel):
     height_m: float = Field(1.75, ge=1.2, le=2.2, description="standing height")
     proportions: dict[str, float] = Field(default_factory=dict, description="overrides of anthropometric fractions of height")
 
+    @model_validator(mode="after")
+    def _proportions_are_body_parameters(self):
+        allowed = [f.name for f in dataclasses.fields(BodyParams) if f.name != "height_m"]
+        unknown = sorted(set(self.proportions) - set(allowed))
+        if unknown:
+            raise ValueError(f"proportions {unknown} are not body parameters; use: {', '.join(allowed)}")
+        self.params()  # BodyParams names a value out of its range
+        return self
+
+    def params(self) -> BodyParams:
+        """The subject's :class:`BodyParams`: the height and the proportions' overrides."""
+        return BodyParams(height_m=self.height_m, **self.proportions)
+
+
+#: Marker sets a subject can wear (:data:`simbench.scenes.markers.MARKER_SETS`), or none.
+MarkerSetName = Literal[tuple([*MARKER_SETS, "none"])]
+
 
 class SubjectConfig(FrozenModel):
-    markers: Literal["plugin_gait_full", "sparse_joints", "upper_body", "none"] = "plugin_gait_full"
+    markers: MarkerSetName = "plugin_gait_full"
     shirt: bool = False
     suit_rgb: Vec3 = Field((0.04, 0.04, 0.05), description="linear albedo of the suit/clothes")
     skin_rgb: Vec3 = (0.55, 0.38, 0.30)
@@ -81,6 +112,14 @@ class MotionConfig(FrozenModel):
     name_map: dict[str, str] = Field(
         default_factory=dict, description="bvh: humanoid body -> BVH joint, for joints whose names are not recognised "
         "(bodies: " + ", ".join(BODY_NAMES) + ")")
+
+    @field_validator("clip")
+    @classmethod
+    def _known_clip(cls, v: str) -> str:
+        if v not in MOTIONS and v not in ("bvh", "c3d", "trc"):
+            raise ValueError(f"unknown clip; choose one of {', '.join(MOTIONS)}, or 'bvh' with `bvh = \"file.bvh\"` "
+                             "(a capture: give `c3d` or `trc`)")
+        return v
 
     @field_validator("name_map")
     @classmethod
@@ -216,11 +255,38 @@ class LightEventConfig(FrozenModel):
     intensity: float = Field(ge=0.0, description="new intensity (0 = switched off)")
 
 
+_CEILING = tuple(LightConfig(name=f"ceiling_{i}", kind="point", position=(x, y, 2.9), cct_k=4100.0, tint=1.5, intensity=5.0)
+                 for i, (x, y) in enumerate(((1.5, 1.5), (1.5, -1.5), (-1.5, 1.5), (-1.5, -1.5))))
+_TUNGSTEN = LightConfig(name="tungsten", kind="point", position=(1.4, 1.3, 1.7), cct_k=2800.0, intensity=7.0)
+
+#: The lights of each lighting preset (their ambient light: :mod:`simbench.render.lighting`).
+LIGHTING_PRESETS: Mapping[str, tuple[LightConfig, ...]] = MappingProxyType({
+    "office_fluorescent": _CEILING,
+    "tungsten_lamp": (_TUNGSTEN,),
+    "daylight_outdoor": (LightConfig(name="sun", kind="directional", direction=(-0.4, 0.3, -0.85), cct_k=5600.0, intensity=7.0),),
+    "dim_gym": tuple(LightConfig(name=f"gym_{i}", kind="point", position=(x, 0.0, 6.0), cct_k=4300.0, intensity=12.0)
+                     for i, x in enumerate((-2.0, 2.0))),
+    "mixed": _CEILING + (_TUNGSTEN,),
+    "custom": (),
+})
+
+
 class LightingConfig(FrozenModel):
-    preset: Literal["office_fluorescent", "tungsten_lamp", "daylight_outdoor", "dim_gym", "mixed", "custom"] = "office_fluorescent"
+    preset: Literal[tuple(LIGHTING_PRESETS)] = "office_fluorescent"
     scale: float = Field(1.0, gt=0.0, description="multiplies every light (brighter/dimmer scene)")
     lights: tuple[LightConfig, ...] = ()
     events: tuple[LightEventConfig, ...] = ()
+
+    @field_validator("events")
+    @classmethod
+    def _events_switch_lights_of_the_set(cls, events: tuple[LightEventConfig, ...], info: ValidationInfo):
+        if "preset" not in info.data or "lights" not in info.data:
+            return events  # the preset or the lights failed their own validation
+        names = sorted({light.name for light in LIGHTING_PRESETS[info.data["preset"]]} | {light.name for light in info.data["lights"]})
+        for i, ev in enumerate(events):
+            if ev.light not in names:
+                raise ValueError(f"event {i} switches light {ev.light!r}, which this lighting does not have; its lights are {names}")
+        return events
 
     @model_validator(mode="after")
     def _custom_needs_lights(self):
@@ -272,11 +338,20 @@ class MarkerPipelineConfig(FrozenModel):
     labelling: Literal["model", "tracker"] = Field(
         "model", description="'model': unlabelled 3D points labelled by the subject model from any frame, through gaps; "
         "'tracker': seed 000's T-pose first frame kept by the 2D `tracker` in each camera")
-    tracker: str = "kalman"
+    tracker: str = Field("kalman", description="a registered 2D tracker (`simbench list`) or 'package.module:Class'")
     calibration: Literal["ground_truth", "estimated"] = "ground_truth"
     smoothing: Literal["none", "butterworth", "rts"] = "none"
     max_gap_frames: int = Field(10, ge=0)
     solve_skeleton: bool = True
+
+    @field_validator("tracker")
+    @classmethod
+    def _registered_tracker(cls, v: str) -> str:
+        try:
+            get_tracker(v)
+        except MocapInputError as exc:  # names the known trackers
+            raise ValueError(str(exc)) from None
+        return v
 
 
 class ShirtPipelineConfig(FrozenModel):
@@ -320,6 +395,14 @@ class CalibrationSceneConfig(FrozenModel):
     wand_marker_radius_m: float = Field(0.0125, gt=0.001, le=0.05)
     volume_center: Vec3 = Field((0.0, 0.0, 1.0), description="centre of the volume the board and wand move through")
     volume_half_m: Vec3 = Field((0.8, 0.8, 0.6), description="half extents of that volume")
+
+    @field_validator("dictionary")
+    @classmethod
+    def _aruco_dictionary(cls, v: str) -> str:
+        if v not in ARUCO_DICTIONARIES:
+            raise ValueError(f"not an OpenCV predefined ArUco dictionary; e.g. DICT_4X4_50, DICT_5X5_100 "
+                             f"({len(ARUCO_DICTIONARIES)} names: mocap.calib.boards.ARUCO_DICTIONARIES)")
+        return v
 
     @model_validator(mode="after")
     def _consistent(self):

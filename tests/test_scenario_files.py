@@ -45,6 +45,15 @@ def _write(tmp_path, text: str) -> Path:
     ('name = "x"\n[sensor]\nexposur_ms = 3\n', "sensor.exposur_ms", "3"),
     ('name = "x"\n[[props]]\nkind = "ball"\nradius_m = 0\n', "props.0.radius_m", "0"),
     ('name = "x"\n[sensor]\nexposure_ms = 50\n', "<root>", "exceeds the frame interval"),
+    # names checked against their registries when the scenario loads (not after the render)
+    ('name = "x"\n[markers_pipeline]\ntracker = "kalmann"\n', "markers_pipeline.tracker", "kalmann"),
+    ('name = "x"\n[motion]\nclip = "wave_slw"\n', "motion.clip", "wave_slw"),
+    ('name = "x"\n[subject]\nmarkers = "plugin_gait"\n', "subject.markers", "plugin_gait"),
+    ('name = "x"\n[body.proportions]\nshank_fraction = 0.3\n', "body", "shank_fraction"),
+    ('name = "x"\n[body.proportions]\nthorax_frac = 0.5\n', "body", "head"),
+    ('name = "x"\n[calibration_scene]\nboard = "charuco"\ndictionary = "DICT_4X4_5O"\n', "calibration_scene.dictionary",
+     "DICT_4X4_5O"),
+    ('name = "x"\n[[lighting.events]]\nt_s = 1.0\nlight = "lamp9"\nintensity = 0\n', "lighting.events", "lamp9"),
 ])
 def test_bad_fields_name_file_field_and_value(tmp_path, text, field, value):
     p = _write(tmp_path, text)
@@ -54,13 +63,14 @@ def test_bad_fields_name_file_field_and_value(tmp_path, text, field, value):
     assert str(p) in msg and field in msg and value in msg
 
 
-def test_unknown_light_in_event_is_named(tmp_path):
-    p = _write(tmp_path, 'name = "x"\n[[lighting.events]]\nt_s = 1.0\nlight = "lamp9"\nintensity = 0\n')
-    from simbench.render.lighting import Lighting
-
-    sc = load_scenario(p)
-    with pytest.raises(ScenarioError, match="lighting.events.0.light.*lamp9.*ceiling_0"):
-        Lighting(sc.lighting, scenario_path=str(p))
+def test_an_event_may_switch_a_light_of_the_preset_or_an_added_one(tmp_path):
+    p = _write(tmp_path, 'name = "x"\n[lighting]\npreset = "mixed"\n[[lighting.lights]]\nname = "lamp9"\nposition = [1, 1, 2]\n'
+                         '[[lighting.events]]\nt_s = 1.0\nlight = "lamp9"\nintensity = 0\n'
+                         '[[lighting.events]]\nt_s = 1.5\nlight = "tungsten"\nintensity = 0\n')
+    assert [e.light for e in load_scenario(p).lighting.events] == ["lamp9", "tungsten"]
+    bad = _write(tmp_path, 'name = "y"\n[[lighting.events]]\nt_s = 1.0\nlight = "tungsten"\nintensity = 0\n')
+    with pytest.raises(ScenarioError, match="lighting.events.*'tungsten'.*ceiling_0"):
+        load_scenario(bad)  # office light has no tungsten lamp
 
 
 def test_cli_exits_2_with_one_line_and_writes_nothing(tmp_path):

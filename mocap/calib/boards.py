@@ -34,6 +34,9 @@ import numpy as np
 BoardKind = Literal["checkerboard", "charuco"]
 
 
+#: OpenCV's predefined ArUco dictionaries (``cv2.aruco.DICT_*``), the names a ChArUco board may use.
+ARUCO_DICTIONARIES: tuple[str, ...] = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+
 @dataclass(frozen=True)
 class BoardSpec:
     """A planar calibration target.
@@ -78,7 +81,7 @@ class BoardSpec:
                     f"BoardSpec.marker_length_m must be between 0 and square_length_m={self.square_length_m} m "
                     f"for a ChArUco board, got {self.marker_length_m}"
                 )
-            if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
+            if self.dictionary not in ARUCO_DICTIONARIES:
                 raise ValueError(f"BoardSpec.dictionary {self.dictionary!r} is not an OpenCV predefined ArUco dictionary (e.g. 'DICT_4X4_50', 'DICT_5X5_100')")
 
     @property

@@ -99,14 +99,16 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
 
 @app.command("list")
 def list_things() -> None:
-    """List motions, lighting presets, marker sets and trackers."""
-    from mocap.trackers import TRACKERS
+    """List motions, lighting presets, marker sets and trackers (the names a scenario may use)."""
+    from mocap.trackers import available_trackers
+    from simbench.scenario import LIGHTING_PRESETS
+    from simbench.scenes.markers import MARKER_SETS
     from simbench.scenes.motions import MOTIONS
 
     print("motions:", ", ".join(MOTIONS), "+ bvh")
-    print("lighting presets: office_fluorescent, tungsten_lamp, daylight_outdoor, dim_gym, mixed, custom")
-    print("marker sets: plugin_gait_full, sparse_joints, upper_body, none")
-    print("trackers:", ", ".join(TRACKERS))
+    print("lighting presets:", ", ".join(LIGHTING_PRESETS))
+    print("marker sets:", ", ".join([*MARKER_SETS, "none"]))
+    print("trackers:", ", ".join(available_trackers()))
 
 
 app.add_typer(bench.bench_app, name="bench")

@@ -18,7 +18,6 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from simbench.cli.common import console, user_errors
-from simbench.scenario import parse_overrides
 
 
 def _runs_progress(description: str):
@@ -36,6 +35,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
           set_: list[str] = typer.Option([], "--set", help="override a field in every run, e.g. --set duration_s=0.3"),
           dry_run: bool = typer.Option(False, "--dry-run", help="list the runs and exit")) -> None:
     """Run a grid or random sample of scenarios; record every run in a DuckDB results database."""
+    from simbench.scenario import parse_overrides
     from simbench.sweeps.sweep import default_db_path, load_sweep, run_sweep
 
     sw = load_sweep(sweep_file, extra_set=parse_overrides(set_))
@@ -127,6 +127,8 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
 def _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler, strict: bool = True):
     """Run the suite; ``{scenario name: record}`` in suite order. Scenarios that cannot be
     resolved raise (``strict``, for baselines) or become failed records (``check``)."""
+    from simbench.scenario import parse_overrides
+
     out_dir = (out or Path("out") / "check" / suite) if outputs else None
     if strict:
         runs, unrunnable = suites.runs(suite, only=only, extra_set=parse_overrides(set_)), {}

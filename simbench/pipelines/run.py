@@ -28,7 +28,6 @@ from mocap.detection import DetectionParams
 from mocap.errors import MocapInputError
 from mocap.labelling import save_template
 from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
-from mocap.trackers import get_tracker
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
 from simbench.output_dir import AtomicOutputDir
@@ -107,13 +106,6 @@ class _Stages:
         return any(f.stage == stage for f in self.failures)
 
 
-def preflight(scenario: Scenario) -> None:
-    """Settings only the pipeline reads, checked before anything renders (a user error
-    found after rendering would be a failed stage, exit 3, rather than exit 2)."""
-    if scenario.subject.markers != "none":
-        get_tracker(scenario.markers_pipeline.tracker)  # TrackerNotFoundError names the known ones
-
-
 def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=None, write_outputs: bool = True,
                  progress_factory: ProgressFactory | None = None) -> RunResult:
     """Render, capture and score one scenario; write metrics.json, report and exports to ``out``.
@@ -129,7 +121,6 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
     turns into an exception) or a failure before the frames exist discards everything.
     """
     t0 = time.perf_counter()
-    preflight(scenario)
     output = AtomicOutputDir(out, scenario=scenario.name, kind="run") if (out is not None and write_outputs) else None
     with output if output is not None else nullcontext() as tmp:
         run = _Run(scenario, _Stages(output.public if output is not None else str), tmp, t0)

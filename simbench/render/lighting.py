@@ -13,10 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simbench.errors import ScenarioError
 from simbench.render.color import cct_to_rgb
 from simbench.render.rasterizer import Light
-from simbench.scenario import LightConfig, LightingConfig
+from simbench.scenario import LIGHTING_PRESETS, LightConfig, LightingConfig
 
 
 @dataclass(frozen=True)
@@ -29,37 +28,30 @@ class LightState:
     ambient_rgb: np.ndarray      # (3,)
 
 
+#: Ambient irradiance of each lighting preset: (scale, colour temperature K, tint) of
+#: ``scale * cct_to_rgb(cct, tint)``; the presets' lights are :data:`simbench.scenario.LIGHTING_PRESETS`.
+_AMBIENT: dict[str, tuple[float, float, float]] = {
+    "office_fluorescent": (0.35, 4100.0, 1.5),
+    "tungsten_lamp": (0.12, 2800.0, 0.0),
+    "daylight_outdoor": (1.6, 9000.0, 0.0),
+    "dim_gym": (0.08, 4300.0, 0.0),
+    "mixed": (0.3, 4100.0, 1.5),
+    "custom": (0.0, 6500.0, 0.0),
+}
+
+
 def _preset(name: str) -> tuple[list[LightConfig], np.ndarray]:
     """Lights and ambient irradiance (linear RGB) of a named preset."""
-    ceiling = [
-        LightConfig(name=f"ceiling_{i}", kind="point", position=(x, y, 2.9), cct_k=4100.0, tint=1.5, intensity=5.0)
-        for i, (x, y) in enumerate(((1.5, 1.5), (1.5, -1.5), (-1.5, 1.5), (-1.5, -1.5)))
-    ]
-    tungsten = LightConfig(name="tungsten", kind="point", position=(1.4, 1.3, 1.7), cct_k=2800.0, intensity=7.0)
-    if name == "office_fluorescent":
-        return ceiling, 0.35 * cct_to_rgb(4100.0, 1.5)
-    if name == "tungsten_lamp":
-        return [tungsten], 0.12 * cct_to_rgb(2800.0)
-    if name == "daylight_outdoor":
-        sun = LightConfig(name="sun", kind="directional", direction=(-0.4, 0.3, -0.85), cct_k=5600.0, intensity=7.0)
-        return [sun], 1.6 * cct_to_rgb(9000.0)
-    if name == "dim_gym":
-        gym = [
-            LightConfig(name=f"gym_{i}", kind="point", position=(x, 0.0, 6.0), cct_k=4300.0, intensity=12.0)
-            for i, x in enumerate((-2.0, 2.0))
-        ]
-        return gym, 0.08 * cct_to_rgb(4300.0)
-    if name == "mixed":
-        return ceiling + [tungsten], 0.3 * cct_to_rgb(4100.0, 1.5)
-    if name == "custom":
-        return [], np.zeros(3)
-    raise ValueError(f"unknown lighting preset {name!r}")
+    scale, cct, tint = _AMBIENT[name]
+    ambient = scale * cct_to_rgb(cct, tint) if scale > 0 else np.zeros(3)
+    return list(LIGHTING_PRESETS[name]), ambient
 
 
 class Lighting:
     """The set's lights over time, built from a :class:`LightingConfig`."""
 
-    def __init__(self, config: LightingConfig, scenario_path: str = "<scenario>") -> None:
+    def __init__(self, config: LightingConfig) -> None:
+        """``config`` is validated: its events switch lights of its preset or its own lights."""
         lights, ambient = _preset(config.preset)
         by_name = {light.name: light for light in lights}
         for light in config.lights:  # user lights add to / replace preset lights
@@ -70,10 +62,6 @@ class Lighting:
         self._colour = np.array([cct_to_rgb(c.cct_k, c.tint) for c in self.configs]).reshape(-1, 3)
         self._base = np.array([c.intensity for c in self.configs], float) * config.scale
         self._events = sorted(config.events, key=lambda e: e.t_s)
-        for i, ev in enumerate(self._events):
-            if ev.light not in by_name:
-                raise ScenarioError(scenario_path, f"lighting.events.{i}.light", ev.light,
-                                    f"no such light; lights are {sorted(by_name)}")
         self._scale = config.scale
 
     def intensities_at(self, t: float) -> np.ndarray:

@@ -550,7 +550,7 @@ def render_calibration_scene(scenario: Scenario, rng: np.random.Generator,
     if cfg is None:
         raise ScenarioError(path, "calibration_scene", None, "add a [calibration_scene] section to render calibration views")
     cameras = cameras if cameras is not None else cameras_from_scenario(scenario)
-    lighting = lighting if lighting is not None else Lighting(scenario.lighting, scenario_path=path)
+    lighting = lighting if lighting is not None else Lighting(scenario.lighting)
     spec = board_spec(cfg)
     layout = board_texture_layout(spec, BOARD_TEXTURE_PX_PER_M, BOARD_MARGIN_SQUARES)
     poses = sample_board_poses(cameras, cfg, spec, layout, rng, path)

@@ -196,7 +196,7 @@ class CaptureStage(Stage):
                         evaluate=lambda t: np.broadcast_to(parked, (len(t), NQ)).copy(),
                         description=f"real capture {clip.path.name}: {clip.n_markers} markers")
         cams = cameras_from_scenario(scenario)
-        lighting = Lighting(scenario.lighting, scenario_path=where)
+        lighting = Lighting(scenario.lighting)
         return cls(scenario, params, scene, motion, cams, lighting, list(clip.labels), [p.name for p in scene.props],
                    clip=clip)
 

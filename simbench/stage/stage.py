@@ -27,7 +27,7 @@ from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES
 from simbench.scenes.markers import MARKER_RADIUS_M
 from simbench.scenes.bvh import retarget_bvh_keys
 from simbench.scenes.bvh_file import load_bvh
-from simbench.scenes.motions import MOTIONS, Motion, make_motion
+from simbench.scenes.motions import Motion, make_motion
 from simbench.scenes.props import BallProp, BarrierProp, MovingProp
 from simbench.scenes.scene import Scene, build_scene
 from simbench.scenes.simulation import SceneStates, simulate
@@ -35,7 +35,8 @@ from simbench.stage.renderer import build_frame_renderer, mid_exposure_times
 
 
 def body_params(scenario: Scenario) -> BodyParams:
-    return BodyParams(height_m=scenario.body.height_m, **scenario.body.proportions) if scenario.body.proportions else BodyParams(height_m=scenario.body.height_m)
+    """The subject's body (height and proportions)."""
+    return scenario.body.params()
 
 
 def make_props(scenario: Scenario) -> list:
@@ -64,13 +65,10 @@ def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.
         after the clip's end, or a ``name_map`` joint the file does not have.
     """
     m = scenario.motion
-    where = scenario.source_dir or "<scenario>"
     needed = m.start_s + scenario.duration_s * m.speed
     if m.clip == "bvh":
         clip = _bvh_motion(scenario, params, needed)
-    else:
-        if m.clip not in MOTIONS:
-            raise ScenarioError(where, "motion.clip", m.clip, f"choose one of {sorted(MOTIONS)} or 'bvh'")
+    else:  # a procedural clip (the scenario checked the name)
         clip = make_motion(m.clip, params, needed + 0.1, rng=None)
     if m.start_s == 0.0 and m.speed == 1.0 and m.end != "loop":
         return clip
@@ -132,7 +130,7 @@ class Stage:
                             skin_rgb=tuple(scenario.subject.skin_rgb), clothes_rgb=tuple(scenario.subject.suit_rgb))
         motion = make_scenario_motion(scenario, params, rng)
         cams = cameras_from_scenario(scenario)
-        lighting = Lighting(scenario.lighting, scenario_path=scenario.source_dir or scenario.name)
+        lighting = Lighting(scenario.lighting)
         return cls(scenario, params, scene, motion, cams, lighting,
                    [m.name for m in scene.marker_specs], [p.name for p in scene.props])
 
