@@ -134,35 +134,18 @@ def capture_from_detections(
         raise MocapInputError(f"got detections of {len(detections)} cameras for a calibration of {C} ({calibration.names})")
     F = len(times)
     timings = {"detection": detection_ms}
-    t0 = time.perf_counter()
-    # Two cameras cannot confirm a pairing (every two-view point fits its epipolar line), so the
-    # model path needs three or more; two-camera rigs use seed 000's scheme.
-    use_model = params.labelling == "model" and (subject is not None or marker_model is not None) and C >= 3
     if params.labelling not in ("model", "tracker"):
         raise MocapInputError(f"labelling={params.labelling!r}: use 'model' or 'tracker'")
+    # Two cameras cannot confirm a pairing (every two-view point fits its epipolar line), so the
+    # model path needs three or more; two-camera rigs use seed 000's scheme.
+    labelled = None
+    if params.labelling == "model" and (subject is not None or marker_model is not None) and C >= 3:
+        labelled = _label_with_model(detections, calibration, template, params, subject, marker_model, timings)
+    use_model = labelled is not None
     if use_model:
-        frames = [reconstruct_unlabelled([d[f] for d in detections], calibration, params.correspondence)
-                  for f in range(F)]
-        timings["correspondence"] = (time.perf_counter() - t0) * 1e3
+        tracks, init = labelled
+    else:
         t0 = time.perf_counter()
-        if subject is not None:
-            from mocap.skeleton import SkeletonSolver
-
-            model = SkeletonMarkerModel(SkeletonSolver(subject.with_markers([n for n in template.names if n in subject.marker_names])))
-        else:
-            model = marker_model
-        labels = label_points(frames, model, params.model_labelling)
-        timings["labelling"] = (time.perf_counter() - t0) * 1e3
-        if (labels.point_index >= 0).sum() < 3 * F:
-            # No confident fit anywhere (e.g. two cameras whose pairings are all ambiguous):
-            # fall back to seed 000's scheme rather than return nothing.
-            use_model = False
-            t0 = time.perf_counter()
-        else:
-            tracks, init = _tracks_from_point_labels(labels, frames, detections, list(template.names), calibration)
-            timings["label_init"] = 0.0
-            timings["tracking"] = 0.0
-    if not use_model:
         init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
         timings["label_init"] = (time.perf_counter() - t0) * 1e3
         t0 = time.perf_counter()
@@ -245,6 +228,32 @@ def capture_from_detections(
     reassoc_stats["jump_samples_removed"] = sum(1 for e in swaps if e[0] == "jump")
     tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
     return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
+
+
+def _label_with_model(detections: list[list[Detections]], calibration: Calibration, template: LabelTemplate,
+                      params: MarkerPipelineParams, subject, marker_model: ClusterMarkerModel | None,
+                      timings: dict[str, float]) -> tuple[Tracks2D, LabelInit] | None:
+    """Unlabelled 3D points of every frame, labelled by the subject's skeleton (or the marker
+    model), as labelled 2D measurements; None when the model finds no confident fit anywhere,
+    so that the caller falls back to seed 000's scheme rather than return nothing."""
+    F = len(detections[0])
+    t0 = time.perf_counter()
+    frames = [reconstruct_unlabelled([d[f] for d in detections], calibration, params.correspondence) for f in range(F)]
+    timings["correspondence"] = (time.perf_counter() - t0) * 1e3
+    t0 = time.perf_counter()
+    if subject is not None:
+        from mocap.skeleton import SkeletonSolver
+
+        model = SkeletonMarkerModel(SkeletonSolver(subject.with_markers([n for n in template.names if n in subject.marker_names])))
+    else:
+        model = marker_model
+    labels = label_points(frames, model, params.model_labelling)
+    timings["labelling"] = (time.perf_counter() - t0) * 1e3
+    if (labels.point_index >= 0).sum() < 3 * F:
+        return None
+    timings["label_init"] = 0.0
+    timings["tracking"] = 0.0
+    return _tracks_from_point_labels(labels, frames, detections, list(template.names), calibration)
 
 
 def _tracks_from_point_labels(labels: PointLabels, frames: list[UnlabelledPoints], detections: list[list[Detections]],
