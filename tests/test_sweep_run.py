@@ -16,6 +16,8 @@ from simbench.sweeps.sweep import load_sweep, run_sweep
 from simbench.sweeps.report import write_sweep_report
 
 QUICKSTART = Path("scenarios/quickstart.toml").resolve()
+# A run that passes the sweep's validation and fails when it runs: a window past the clip's end.
+WALK_BVH = Path("scenarios/data/bvh/131_01.bvh").resolve()
 
 # Tiny runs: 2 cameras at 320x240, 0.3 s (9 frames), no supersampling, no skeleton.
 SWEEP = f"""
@@ -34,8 +36,8 @@ name = "variant"
 [factors.levels]
 alpha_beta = { "markers_pipeline.tracker" = "alpha_beta" }
 kalman_blur = { "markers_pipeline.tracker" = "kalman", "sensor.exposure_ms" = 25.0, "sensor.motion_blur" = true }
-broken = { "markers_pipeline.tracker" = "no_such_tracker" }
-"""
+broken = { "motion.clip" = "bvh", "motion.bvh" = "WALK_BVH", "motion.start_s" = 600.0 }
+""".replace("WALK_BVH", str(WALK_BVH))
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +62,7 @@ def test_failing_run_is_recorded_and_the_sweep_goes_on(local):
     bad = runs[runs["status"] == "failed"]
     assert len(bad) == 1
     assert bad.iloc[0]["factors"] == {"variant": "broken"}
-    assert "no_such_tracker" in bad.iloc[0]["error"] and "Traceback" in bad.iloc[0]["error"]
+    assert "the BVH clip" in bad.iloc[0]["error"] and "Traceback" in bad.iloc[0]["error"]
     ok = runs[runs["status"] == "ok"]
     assert len(ok) == 2 and (ok["error"] == "").all()
     for _, r in ok.iterrows():
@@ -120,7 +122,7 @@ def test_report_of_the_sweep_links_outputs(local, tmp_path):
     md = write_sweep_report(db.path, tmp_path / "report")
     text = md.read_text()
     html = (tmp_path / "report" / "report.html").read_text()
-    assert "Failed runs (1)" in text and "no_such_tracker" in text
+    assert "Failed runs (1)" in text and "the BVH clip" in text
     assert (tmp_path / "report" / "plots" / "metrics_vs_variant.png").is_file()
     assert "![metrics vs variant](plots/metrics_vs_variant.png)" in text
     # worst runs link to each run's report and contact sheet, and the links resolve
