@@ -18,14 +18,14 @@ def check() -> str:
     platform = configure_gl_environment()
     from simbench.render.rasterizer import GeometryBuffers, Rasterizer
 
-    r = Rasterizer()
     tri = GeometryBuffers(
         positions=np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float32),
         normals=np.array([[0, 0, -1]] * 3, np.float32), albedo=np.ones((3, 3), np.float32),
         ids=np.full(3, 7, np.int32), retro=np.zeros(3, np.float32), faces=np.array([[0, 1, 2]], np.uint32))
-    r.set_static(tri)
     K = np.array([[32.0, 0, 31.5], [0, 32.0, 31.5], [0, 0, 1]])
-    out = r.render(64, 64, K, np.eye(3), np.array([0, 0, 3.0]), [], np.ones(3))
+    with Rasterizer() as r:
+        r.set_static(tri)
+        out = r.render(64, 64, K, np.eye(3), np.array([0, 0, 3.0]), [], np.ones(3))
     if out["ids"][32, 32] != 7 or not out["radiance"][32, 32].sum() > 0:
         raise RuntimeError("GL context made, but the test triangle did not render")
     import mujoco

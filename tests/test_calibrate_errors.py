@@ -31,7 +31,6 @@ from mocap.calibrate import calibrate_cameras, calibrate_from_observations
 from mocap.calibration import Calibration, Camera
 from mocap.errors import InputFileError, MocapInputError
 
-SAMPLES = Path("/work/shared/data/calib_opencv_left")
 CHECKER = BoardSpec("checkerboard", (9, 6), 0.025)
 CHARUCO = BoardSpec("charuco", (7, 5), 0.10, 0.075)
 
@@ -50,10 +49,11 @@ def _shrink(img: np.ndarray, scale: float) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def damaged_folder(tmp_path_factory) -> Path:
+def damaged_folder(tmp_path_factory, shared_data) -> Path:
     """3 good views and 5 spoiled ones of OpenCV's sample board."""
     d = tmp_path_factory.mktemp("cam_left")
-    img = {n: cv2.imread(str(SAMPLES / f"{n}.jpg"), cv2.IMREAD_GRAYSCALE) for n in ("left01", "left03", "left04", "left05", "left06", "left07")}
+    samples = shared_data / "calib_opencv_left"
+    img = {n: cv2.imread(str(samples / f"{n}.jpg"), cv2.IMREAD_GRAYSCALE) for n in ("left01", "left03", "left04", "left05", "left06", "left07")}
     cv2.imwrite(str(d / "a_good1.png"), img["left01"])
     cv2.imwrite(str(d / "a_good2.png"), img["left03"])
     cv2.imwrite(str(d / "a_good3.png"), img["left07"])

@@ -15,18 +15,22 @@ from eval.calibration_metrics import compare_calibrations
 from mocap.calibrate import run_calibrate_cli
 from mocap.calibration import Calibration
 
-DATA = Path("/work/shared/data/calib_opencv_left")
 
 
 @pytest.fixture(scope="module")
-def result(tmp_path_factory):
+def samples(shared_data) -> Path:
+    return shared_data / "calib_opencv_left"
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory, samples):
     out = tmp_path_factory.mktemp("calib") / "left"
-    return run_calibrate_cli([f"left={DATA}"], str(out), board="checkerboard", board_size="9x6", square_mm=25.0,
+    return run_calibrate_cli([f"left={samples}"], str(out), board="checkerboard", board_size="9x6", square_mm=25.0,
                              fix_aspect_ratio=True)
 
 
-def test_reproduces_opencv_reference(result):
-    ref = Calibration.load(DATA / "left_intrinsics.yml")[0]
+def test_reproduces_opencv_reference(result, samples):
+    ref = Calibration.load(samples / "left_intrinsics.yml")[0]
     cam = result.calibration["left"]
     rms = result.reprojection_rms_px["left"]
     scores = compare_calibrations(result.calibration, Calibration((ref.replace(name="left"),)), align="none")

@@ -181,7 +181,7 @@ def test_charuco_board_corners_and_origin(tmp_path):
     spec = board_spec(cfg)
     lay = board_texture_layout(spec, BOARD_TEXTURE_PX_PER_M, BOARD_MARGIN_SQUARES)
     poses = sample_board_poses(cams, cfg, spec, lay, np.random.default_rng(1))
-    images, _ = render_board_views(sc, cams, Lighting(sc.lighting), spec, poses, noise_seed=5)
+    images = render_board_views(sc, cams, Lighting(sc.lighting), spec, poses, noise_seed=5)
     from simbench.stage.calibration_scene import CalibrationScene
     from mocap.calibration import Calibration
 

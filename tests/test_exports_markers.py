@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import ezc3d
 import numpy as np
@@ -12,7 +11,6 @@ from mocap.errors import InputFileError, MocapInputError
 from mocap.exports import opensim_to_world, read_c3d, read_csv, read_trc, world_to_opensim, write_c3d, write_csv, write_trc
 from mocap.types import Trajectories
 
-QUALISYS = Path("/work/shared/data/c3d/Qualisys.c3d")
 
 
 @pytest.fixture()
@@ -71,10 +69,11 @@ def test_c3d_round_trip_and_fields(traj, tmp_path):
     np.testing.assert_allclose(back.residual_px[measured], traj.residual_px[measured], atol=0.0101)
 
 
-def test_c3d_reads_a_real_capture_in_metres():
+def test_c3d_reads_a_real_capture_in_metres(shared_data):
+    qualisys = shared_data / "c3d" / "Qualisys.c3d"
     """Qualisys.c3d: 55 labels, 200 Hz, 340 frames, mm -> m; filled flags not invented."""
-    traj = read_c3d(QUALISYS)
-    raw = ezc3d.c3d(str(QUALISYS))
+    traj = read_c3d(qualisys)
+    raw = ezc3d.c3d(str(qualisys))
     assert len(traj.labels) == 55 and traj.labels[0] == "L_IAS"
     assert traj.xyz.shape == (340, 55, 3)
     assert traj.rate_hz == pytest.approx(200.0)

@@ -20,7 +20,6 @@ from mocap.labelling import (
 )
 from mocap.types import Detections
 
-STATIC_C3D = Path("/work/shared/data/c3d/Sample_Static.c3d")
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -43,11 +42,16 @@ def room_rig() -> Calibration:
     return Calibration(tuple(cams))
 
 
-def plug_in_gait_template() -> LabelTemplate:
+@pytest.fixture(scope="module")
+def static_c3d(shared_data) -> Path:
+    return shared_data / "c3d" / "Sample_Static.c3d"
+
+
+def plug_in_gait_template(static_c3d: Path) -> LabelTemplate:
     """The 35 Plug-in Gait markers of a real static trial (Vicon, pyCGM sample data),
     moved to the subject-local frame: facing +X, Z up, origin between the ankles on the
     floor. The subject stands with the arms out (not a strict T-pose): fine for a template."""
-    c3d = ezc3d.c3d(str(STATIC_C3D))
+    c3d = ezc3d.c3d(str(static_c3d))
     labels = c3d["parameters"]["POINT"]["LABELS"]["value"][:35]
     p = c3d["data"]["points"][:3, :35, 0].T / 1000.0
     idx = {n: i for i, n in enumerate(labels)}
@@ -61,14 +65,14 @@ def plug_in_gait_template() -> LabelTemplate:
     return LabelTemplate(tuple(labels), local)
 
 
-def test_template_is_facing_plus_x() -> None:
-    t = plug_in_gait_template()
+def test_template_is_facing_plus_x(static_c3d) -> None:
+    t = plug_in_gait_template(static_c3d)
     i = {n: k for k, n in enumerate(t.names)}
     assert t.positions[i["STRN"], 0] > t.positions[i["T10"], 0]        # chest in front
     assert t.positions[i["LASI"], 1] > t.positions[i["RASI"], 1]       # left is +Y
     # the move to the local frame is rigid (a turn about Z and a shift): the heights of the
     # real trial's markers keep their spread, and the lowest ends 4 cm above the floor
-    raw_z = ezc3d.c3d(str(STATIC_C3D))["data"]["points"][2, :35, 0] / 1000.0
+    raw_z = ezc3d.c3d(str(static_c3d))["data"]["points"][2, :35, 0] / 1000.0
     np.testing.assert_allclose(t.positions[:, 2] - t.positions[:, 2].min(), raw_z - raw_z.min(), atol=1e-12)
     assert t.positions[:, 2].min() == pytest.approx(0.04, abs=1e-12)
 
@@ -114,9 +118,9 @@ def check_labels(found: np.ndarray, expected: np.ndarray, merged: np.ndarray, pr
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_recovers_placement_and_labels(seed: int) -> None:
+def test_recovers_placement_and_labels(seed: int, static_c3d) -> None:
     rng = np.random.default_rng(seed)
-    template = plug_in_gait_template()
+    template = plug_in_gait_template(static_c3d)
     cal = room_rig()
     truth = Placement(rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0), rng.uniform(-np.pi, np.pi), rng.uniform(0.95, 1.05))
     world, dets, expected, merged = scene(rng, template, truth, cal, noise_px=0.3, slack_m=0.01)
@@ -164,11 +168,11 @@ def relaxed_pose(template: LabelTemplate, arm_drop_deg: float) -> LabelTemplate:
     return LabelTemplate(template.names, p)
 
 
-def test_first_frame_off_the_template_pose() -> None:
+def test_first_frame_off_the_template_pose(static_c3d) -> None:
     """Arms 8 degrees lower than in the template, head turned 9 degrees, 5 mm of
     marker noise and 0.5 px of pixel noise: labels are still right."""
     rng = np.random.default_rng(7)
-    template = plug_in_gait_template()
+    template = plug_in_gait_template(static_c3d)
     cal = room_rig()
     truth = Placement(0.6, -0.4, 2.5)
     world, dets, expected, merged = scene(rng, relaxed_pose(template, 8.0), truth, cal, noise_px=0.5, slack_m=0.005)
@@ -180,8 +184,8 @@ def test_first_frame_off_the_template_pose() -> None:
     check_labels(result.detection_index, expected, merged, cal.project(world), max_unlabelled=int(0.12 * (expected >= 0).sum()))
 
 
-def test_template_csv_roundtrip_and_errors(tmp_path: Path) -> None:
-    t = plug_in_gait_template()
+def test_template_csv_roundtrip_and_errors(tmp_path: Path, static_c3d) -> None:
+    t = plug_in_gait_template(static_c3d)
     path = save_template(t, tmp_path / "pig.csv")
     back = load_template(path)
     assert back.names == t.names
@@ -203,8 +207,8 @@ def test_template_csv_roundtrip_and_errors(tmp_path: Path) -> None:
         load_template(tmp_path / "missing.csv")
 
 
-def test_input_errors() -> None:
-    template = plug_in_gait_template()
+def test_input_errors(static_c3d) -> None:
+    template = plug_in_gait_template(static_c3d)
     cal = room_rig()
     with pytest.raises(ValueError, match="4"):
         initial_labels([Detections.empty()] * 3, cal, template)

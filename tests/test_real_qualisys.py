@@ -10,7 +10,6 @@ a user's manual labelling would (the first frame is mid-walk, not a T-pose).
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import ezc3d
 import numpy as np
@@ -21,7 +20,6 @@ from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.tracking import track_cameras
 from mocap.types import Detections
 
-C3D = Path("/work/shared/data/c3d/Qualisys.c3d")
 RATE_HZ = 200.0
 NOISE_PX = 0.1
 MARKER_RADIUS_M = 0.007
@@ -39,9 +37,9 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def capture():
+def capture(shared_data):
     """C3D markers, the rig, and every camera's shuffled noisy detections."""
-    c3d = ezc3d.c3d(str(C3D))
+    c3d = ezc3d.c3d(str(shared_data / "c3d" / "Qualisys.c3d"))
     assert c3d["parameters"]["POINT"]["UNITS"]["value"][0] == "mm"
     assert float(c3d["parameters"]["POINT"]["RATE"]["value"][0]) == RATE_HZ
     labels = list(c3d["parameters"]["POINT"]["LABELS"]["value"])

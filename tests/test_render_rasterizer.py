@@ -34,3 +34,40 @@ def test_cached_static_set_with_dirty_rectangles_equals_a_full_redraw():
             assert np.count_nonzero(fresh["ids"] == 1) > 2000, (ci, k)
         for name in outputs:
             assert np.array_equal(cached[name], fresh[name]), (ci, k, name)
+
+
+def test_replaced_geometry_is_freed_and_free_releases_every_gl_object():
+    """set_static/set_dynamic/set_texture delete what they replace, and free() deletes the
+    rest (programs, meshes, texture, framebuffers) but not a context it was given."""
+    from OpenGL import GL as gl
+
+    from simbench.render.gl_context import GLContext
+    from simbench.render.rasterizer import GeometryBuffers, Rasterizer
+
+    tri = GeometryBuffers(positions=np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float32),
+                          normals=np.array([[0, 0, -1]] * 3, np.float32), albedo=np.ones((3, 3), np.float32),
+                          ids=np.full(3, 7, np.int32), retro=np.zeros(3, np.float32), faces=np.array([[0, 1, 2]], np.uint32))
+    K = np.array([[32.0, 0, 31.5], [0, 32.0, 31.5], [0, 0, 1]])
+    context = GLContext(64, 64)
+    try:
+        r = Rasterizer(context)
+        r.set_static(tri)
+        r.set_dynamic(tri)
+        r.set_texture(np.ones((4, 4)))
+        first = (r._static.vao, r._static.vbo_pos, r._dynamic.vao, r._texture)
+        r.set_static(tri)
+        r.set_dynamic(tri)
+        r.set_texture(np.ones((4, 4)))
+        assert not gl.glIsVertexArray(first[0]) and not gl.glIsBuffer(first[1])
+        assert not gl.glIsVertexArray(first[2]) and not gl.glIsTexture(first[3])
+        out = r.render(64, 64, K, np.eye(3), np.array([0, 0, 3.0]), [], np.ones(3))
+        assert out["ids"][32, 32] == 7
+        held = (r._static.vao, r._dynamic.vao, r._texture, *r._progs.values(), *(t.fbo for t in r._fbos.values()))
+        with r:
+            pass  # the context manager frees on the way out
+        r.free()  # and free() may be called again
+        context.make_current()  # the context was given, so it is still usable
+        assert not any(gl.glIsVertexArray(o) or gl.glIsTexture(o) or gl.glIsProgram(o) or gl.glIsFramebuffer(o)
+                       for o in held)
+    finally:
+        context.close()

@@ -5,26 +5,31 @@ Frames per second at 640x480 on one core (llvmpipe limited to one thread with
 configurations, and ``mujoco.Renderer`` on the same MuJoCo scene (humanoid geoms,
 floor, props) with MSAA, shadows and reflections off, as the reference.
 
-MuJoCo and PyOpenGL choose their GL platform when they are first imported, so
+MuJoCo chooses its GL platform when it is first imported (``MUJOCO_GL``), so
 :func:`run_render_benchmark` sets it (:func:`~simbench.render.gl_context.configure_gl_environment`)
-before it imports them (the stage, MuJoCo).
+before it imports anything that imports MuJoCo (the scenario's registries, the stage).
 """
 
 from __future__ import annotations
 
 import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from simbench.benchmarks.timing import frames_per_second, one_core
 from simbench.render.gl_context import configure_gl_environment
-from simbench.scenario import RigConfig, Scenario
+
+if TYPE_CHECKING:
+    from simbench.scenario import Scenario
 
 log = logging.getLogger(__name__)
 
 
-def bench_scenario(n_frames: int) -> Scenario:
+def bench_scenario(n_frames: int) -> "Scenario":
     """The measured scene: 4 cameras around the humanoid (floor, walls), zigzag_fast, visible light, no blur."""
+    from simbench.scenario import RigConfig, Scenario  # after configure_gl_environment (module doc)
+
     return Scenario(name="bench_render", duration_s=max(n_frames + 5, 4) / 30.0,
                     rig=RigConfig(count=4, radius_m=3.2, height_m=2.0, look_at=(0, 0, 0.95), hfov_deg=56),
                     motion={"clip": "zigzag_fast"},
@@ -67,7 +72,7 @@ def run_render_benchmark(n_frames: int = 60) -> dict[str, float]:
     return results
 
 
-def measure_renderer(sc: Scenario, n_cams: int, what: str, n_frames: int) -> tuple[float, float]:
+def measure_renderer(sc: "Scenario", n_cams: int, what: str, n_frames: int) -> tuple[float, float]:
     """Camera-frames per second of the first ``n_cams`` cameras and the mean shutter sub-frames.
 
     ``what``: ``"full"`` (shutter, sensor, every camera), or one camera's ``"ids"`` or
@@ -79,27 +84,27 @@ def measure_renderer(sc: Scenario, n_cams: int, what: str, n_frames: int) -> tup
     stage = build_stage(sc)
     times = stage.frame_times()[: n_frames + 3]
     stage.cameras = stage.cameras[:n_cams]
-    fr = stage.frame_renderer()
     poses = stage.pose_at(times)
-    plan = plan_subframes(fr, times, stage.pose_at)
-    sub = [poses_at_times(stage.pose_at, p) for p in plan]
-    if what == "full":
-        def one(k: int) -> None:
-            fr.render_frame(k, float(times[k]), sub[k], poses[k], frame_rng(0, k))
-    else:
-        cam = fr.cameras[0]
-        canvas = cam.canvas(1)
+    with stage.frame_renderer() as fr:
+        plan = plan_subframes(fr, times, stage.pose_at)
+        sub = [poses_at_times(stage.pose_at, p) for p in plan]
+        if what == "full":
+            def one(k: int) -> None:
+                fr.render_frame(k, float(times[k]), sub[k], poses[k], frame_rng(0, k))
+        else:
+            cam = fr.cameras[0]
+            canvas = cam.canvas(1)
 
-        def one(k: int) -> None:
-            P, N = fr.moving.pose(poses[k].body_pos, poses[k].body_rot, poses[k].marker_pos, poses[k].prop_T)
-            fr.raster.update_dynamic(P, N)
-            fr.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, stage.lighting.lights_at(0.0),
-                             stage.lighting.ambient_rgb, outputs=(what,))
-    fps = frames_per_second(one, n_frames) * (n_cams if what == "full" else 1)
+            def one(k: int) -> None:
+                P, N = fr.moving.pose(poses[k].body_pos, poses[k].body_rot, poses[k].marker_pos, poses[k].prop_T)
+                fr.raster.update_dynamic(P, N)
+                fr.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, stage.lighting.lights_at(0.0),
+                                 stage.lighting.ambient_rgb, outputs=(what,))
+        fps = frames_per_second(one, n_frames) * (n_cams if what == "full" else 1)
     return fps, float(np.mean([len(p) for p in plan[3:]]))
 
 
-def measure_mujoco_renderer(sc: Scenario, n_frames: int) -> float:
+def measure_mujoco_renderer(sc: "Scenario", n_frames: int) -> float:
     """Frames per second of ``mujoco.Renderer`` on the stage's MuJoCo scene from its first camera
     (MSAA, shadows, reflections and skybox off)."""
     import mujoco  # after the GL platform is set

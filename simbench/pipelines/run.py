@@ -38,8 +38,8 @@ from simbench.pipelines.shirt import run_shirt_capture
 from simbench.pipelines.shirt_database import ProgressFactory
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
-from simbench.stage.rendering import (RenderedSequence, contact_sheet_rows, render_frames, save_scenario_copy,
-                                      write_contact_sheet, write_render_outputs)
+from simbench.stage.rendering import (RenderedSequence, contact_sheet_rows, render_frames, render_writer, save_scenario_copy,
+                                      write_contact_sheet)
 
 
 @dataclass(frozen=True)
@@ -153,23 +153,19 @@ class _Run:
         """Render every frame: videos written, detections streamed, the contact sheet's frames kept;
         the frames themselves are kept only for the shirt pipeline."""
         keep = set(contact_sheet_rows(self.scenario.n_frames))
-        writer = write_render_outputs(self.stage, self.tmp, png=False) if self.tmp is not None else None
-
-        def on_frame(fo):
-            interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the run here
-            if writer is not None:
-                writer[0](fo)
-            if self.stream is not None:
-                self.stream.add(list(fo.images))
-            if fo.index in keep:
-                self.kept_frames[fo.index] = fo.images.copy()
-
         shirt = self.scenario.subject.shirt
-        try:
+        with render_writer(self.stage, self.tmp, png=False) if self.tmp is not None else nullcontext() as write:
+
+            def on_frame(fo):
+                interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the run here
+                if write is not None:
+                    write(fo)
+                if self.stream is not None:
+                    self.stream.add(list(fo.images))
+                if fo.index in keep:
+                    self.kept_frames[fo.index] = fo.images.copy()
+
             self.seq = render_frames(self.stage, on_frame=on_frame, keep_frames=shirt, keep_ids=shirt, progress=progress)
-        finally:
-            if writer is not None:
-                writer[1]()
         self.timings["render_s"] = time.perf_counter() - self.t0
         self.gt = self.seq.ground_truth
         self.calibration = self.gt.calibration()

@@ -42,15 +42,15 @@ def scribble_labels(id_map: np.ndarray, patch_colour: np.ndarray, margin_px: int
 
 def render_empty_frames(bench: Stage, n: int = 3) -> list[list[np.ndarray]]:
     """``n`` frames per camera of the empty scene (the subject moved far below the floor), lights as at the start."""
-    fr = bench.frame_renderer()
     times = bench.frame_times()[:n]
     out: list[list[np.ndarray]] = [[] for _ in bench.cameras]
-    for k, (t, pose) in enumerate(zip(times, bench.pose_at(times))):
-        gone = Pose(pose.body_pos + np.array([0.0, 0.0, -100.0]), pose.body_rot, pose.marker_pos - np.array([0.0, 0.0, 100.0]),
-                    pose.prop_T, pose.probe_points)
-        fo = fr.render_frame(k, float(t), [gone], gone, frame_rng(bench.scenario.seed + 7919, k))
-        for ci in range(len(bench.cameras)):
-            out[ci].append(fo.images[ci])
+    with bench.frame_renderer() as fr:
+        for k, (t, pose) in enumerate(zip(times, bench.pose_at(times))):
+            gone = Pose(pose.body_pos + np.array([0.0, 0.0, -100.0]), pose.body_rot, pose.marker_pos - np.array([0.0, 0.0, 100.0]),
+                        pose.prop_T, pose.probe_points)
+            fo = fr.render_frame(k, float(t), [gone], gone, frame_rng(bench.scenario.seed + 7919, k))
+            for ci in range(len(bench.cameras)):
+                out[ci].append(fo.images[ci])
     return out
 
 

@@ -84,6 +84,7 @@ class FrameRenderer:
         self.moving = moving
         self.n_markers = n_markers
         self.marker_radius = marker_radius
+        self._owns_raster = rasterizer is None
         self.raster = rasterizer or Rasterizer()
         self.raster.set_static(static)
         self.raster.set_dynamic(moving.buffers)
@@ -94,6 +95,18 @@ class FrameRenderer:
         self._gl = None
         self._buffers: dict[tuple[int, int], dict[str, np.ndarray]] = {}
         self.set_sensor_backend(sensor_backend)
+
+    def free(self) -> None:
+        """Release the rasteriser's GL objects if this renderer made it (a rasteriser passed in
+        stays with its owner); ``with FrameRenderer(...) as r:`` does so on the way out."""
+        if self._owns_raster:
+            self.raster.free()
+
+    def __enter__(self) -> "FrameRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.free()
 
     def set_sensor_backend(self, backend: str) -> None:
         """Switch between ``"numpy"``, ``"reference"`` and ``"gl"`` (see the constructor)."""

@@ -317,6 +317,12 @@ class _Mesh:
                 gl.glVertexAttribIPointer(loc, comps, ityp, 0, None)
         gl.glBindVertexArray(0)
 
+    def free(self) -> None:
+        """Delete the vertex array and every buffer of this mesh (the context must be current)."""
+        gl.glDeleteVertexArrays(1, [self.vao])
+        gl.glDeleteBuffers(3 + len(self._static), [self.ebo, self.vbo_pos, self.vbo_nrm, *self._static])
+        self._static = []
+
     def update(self, positions: np.ndarray, normals: np.ndarray) -> None:
         if len(positions) != self.n:
             raise ValueError(f"dynamic geometry has {self.n} vertices, got {len(positions)}")
@@ -360,21 +366,32 @@ def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar
 
 
 class Rasterizer:
-    """Renders static and dynamic triangle geometry into (radiance, ids, depth)."""
+    """Renders static and dynamic triangle geometry into (radiance, ids, depth).
+
+    Holds GL objects (programs, meshes, a texture, framebuffers) and, unless one is given,
+    its own off-screen context: :meth:`free` releases them all, and ``with Rasterizer() as r:``
+    does so on the way out.
+    """
 
     def __init__(self, context: GLContext | None = None) -> None:
+        self._owns_context = context is None
         self.context = context or GLContext(64, 64)
         self.context.make_current()
+        self._texture: int | None = None
         # Programs for textured and untextured meshes (see _FRAG), with their uniform locations.
         self._progs: dict[bool, int] = {}
         self._locs: dict[bool, dict[str, int]] = {}
         for textured in (True, False):
             prog = gl.glCreateProgram()
-            for src, kind in ((_VERT, gl.GL_VERTEX_SHADER), (_FRAG % {"textured": int(textured)}, gl.GL_FRAGMENT_SHADER)):
-                gl.glAttachShader(prog, _compile(src, kind))
+            shaders = [_compile(src, kind) for src, kind in ((_VERT, gl.GL_VERTEX_SHADER),
+                                                             (_FRAG % {"textured": int(textured)}, gl.GL_FRAGMENT_SHADER))]
+            for shader in shaders:
+                gl.glAttachShader(prog, shader)
             gl.glLinkProgram(prog)
             if not gl.glGetProgramiv(prog, gl.GL_LINK_STATUS):
                 raise RuntimeError(gl.glGetProgramInfoLog(prog).decode())
+            for shader in shaders:
+                gl.glDeleteShader(shader)  # flagged: freed with the program
             self._progs[textured] = prog
             self._locs[textured] = {
                 name: gl.glGetUniformLocation(prog, name)
@@ -427,18 +444,56 @@ class Rasterizer:
         gl.glDeleteTextures(1, [target.radiance])
         gl.glDeleteRenderbuffers(3, [target.ids, target.zcam, target.depth])
 
-    # ---------------------------------------------------------------- geometry
-    def set_static(self, buf: GeometryBuffers) -> None:
+    def free(self) -> None:
+        """Release every GL object (and the context, if this rasteriser made it); idempotent."""
+        if self.context is None:
+            return
         self.context.make_current()
-        self._static = _Mesh(buf, dynamic=False)
+        for mesh in (self._static, self._dynamic):
+            if mesh is not None:
+                mesh.free()
+        self._static = self._dynamic = None
+        self._clear_static_cache()
+        for target in self._fbos.values():
+            self._delete_target(target)
+        self._fbos.clear()
+        if self._texture is not None:
+            gl.glDeleteTextures(1, [self._texture])
+            self._texture = None
+        gl.glUseProgram(0)  # a program in use is only flagged for deletion
+        for prog in self._progs.values():
+            gl.glDeleteProgram(prog)
+        self._progs.clear()
+        if self._owns_context:
+            self.context.close()
+        self.context = None
+
+    def __enter__(self) -> "Rasterizer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.free()
+
+    def _clear_static_cache(self) -> None:
         for view in self._static_cache.values():
             self._delete_target(view.static)
             self._delete_target(view.work)
         self._static_cache.clear()
 
-    def set_dynamic(self, buf: GeometryBuffers) -> None:
-        """Topology and per-vertex attributes of the moving geometry (set once)."""
+    # ---------------------------------------------------------------- geometry
+    def set_static(self, buf: GeometryBuffers) -> None:
+        """The static set (replacing, and freeing, the previous one)."""
         self.context.make_current()
+        if self._static is not None:
+            self._static.free()
+        self._static = _Mesh(buf, dynamic=False)
+        self._clear_static_cache()
+
+    def set_dynamic(self, buf: GeometryBuffers) -> None:
+        """Topology and per-vertex attributes of the moving geometry (replacing, and freeing, the previous one)."""
+        self.context.make_current()
+        if self._dynamic is not None:
+            self._dynamic.free()
         self._dynamic = _Mesh(buf, dynamic=True)
         self._dynamic_positions = np.array(buf.positions, np.float32)
 
@@ -448,6 +503,8 @@ class Rasterizer:
         img = np.asarray(image, np.float32)
         if img.ndim == 2:
             img = np.repeat(img[..., None], 3, axis=2)
+        if self._texture is not None:
+            gl.glDeleteTextures(1, [self._texture])
         tex = gl.glGenTextures(1)
         gl.glActiveTexture(gl.GL_TEXTURE0)
         gl.glBindTexture(gl.GL_TEXTURE_2D, tex)

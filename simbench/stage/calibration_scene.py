@@ -46,7 +46,7 @@ from mocap.detection import DetectionParams, detect_markers
 from simbench.errors import ScenarioError
 from simbench.render import ids as idc
 from simbench.render.camera import VirtualCamera, cameras_from_scenario
-from simbench.render.frames import Pose, frame_rng, iterate_frames
+from simbench.render.frames import FrameRenderer, Pose, frame_rng, iterate_frames
 from simbench.render.geometry import MovingGeometry, board_buffers, wand_geometry
 from simbench.render.lighting import Lighting
 from simbench.render.rasterizer import Rasterizer
@@ -443,11 +443,11 @@ def _rigid_pose(prop_T: np.ndarray, marker_pos: np.ndarray | None = None) -> Pos
 
 def render_board_views(scenario: Scenario, cameras: list[VirtualCamera], lighting: Lighting, spec: BoardSpec,
                        poses: BoardPoses, noise_seed: int, rasterizer: Rasterizer | None = None,
-                       progress: Callable[[int], None] | None = None) -> tuple[np.ndarray, Rasterizer]:
+                       progress: Callable[[int], None] | None = None) -> np.ndarray:
     """Grey pictures ``(V, C, H, W)`` uint8 of the board at ``poses``, through the scenario's sensor in visible mode.
 
     Every view is a still (no motion blur) lit by the scenario's lights at ``t = 0``.
-    Returns the pictures and the rasteriser (to reuse).
+    ``rasterizer``: one to reuse (it stays with the caller); else one is made and freed here.
     """
     cfg = scenario.calibration_scene
     sensor = scenario.sensor.model_copy(update={
@@ -456,20 +456,20 @@ def render_board_views(scenario: Scenario, cameras: list[VirtualCamera], lightin
     albedo, layout = board_albedo_texture(spec)
     buf = board_buffers(layout.size_m, layout.origin_m, cfg.board_thickness_m, idc.BOARD)
     moving = MovingGeometry(buf, [("prop", 0, slice(0, len(buf.positions)))])
-    renderer = build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, moving,
-                                    rasterizer=rasterizer)
-    renderer.raster.set_texture(albedo)
     T = poses.transforms()
     V, C = poses.n_views, len(cameras)
     out = np.zeros((V, C, cameras[0].height, cameras[0].width), np.uint8)
-    for v in range(V):
-        pose = _rigid_pose(T[v:v + 1])
-        fo = renderer.render_frame(v, 0.0, [pose], pose, frame_rng(noise_seed, v))
-        for c in range(C):
-            out[v, c] = cv2.cvtColor(fo.images[c], cv2.COLOR_RGB2GRAY)
-        if progress is not None:
-            progress(1)
-    return out, renderer.raster
+    with build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, moving,
+                              rasterizer=rasterizer) as renderer:
+        renderer.raster.set_texture(albedo)
+        for v in range(V):
+            pose = _rigid_pose(T[v:v + 1])
+            fo = renderer.render_frame(v, 0.0, [pose], pose, frame_rng(noise_seed, v))
+            for c in range(C):
+                out[v, c] = cv2.cvtColor(fo.images[c], cv2.COLOR_RGB2GRAY)
+            if progress is not None:
+                progress(1)
+    return out
 
 
 def detect_wand_blobs(image: np.ndarray, params: DetectionParams | None = None, background: np.ndarray | None = None,
@@ -496,13 +496,26 @@ def detect_wand_blobs(image: np.ndarray, params: DetectionParams | None = None, 
 def render_wand(scenario: Scenario, cameras: list[VirtualCamera], lighting: Lighting, motion: WandMotion,
                 n_frames: int, noise_seed: int, rasterizer: Rasterizer | None = None,
                 progress: Callable[[int], None] | None = None) -> dict[str, np.ndarray]:
-    """Render the wand in IR and find its blobs; returns the arrays of :class:`CalibrationScene`'s ``wand_*``."""
+    """Render the wand in IR and find its blobs; returns the arrays of :class:`CalibrationScene`'s ``wand_*``.
+
+    ``rasterizer``: one to reuse (it stays with the caller); else one is made and freed here.
+    """
     cfg = scenario.calibration_scene
     sensor = scenario.sensor.model_copy(update={"mode": "ir"})
     geo = wand_geometry(motion.offsets_m, cfg.wand_marker_radius_m, WAND_STICK_RADIUS_M)
-    renderer = build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, geo, 3,
-                                    cfg.wand_marker_radius_m, rasterizer=rasterizer)
-    times = mid_exposure_times(n_frames, scenario.fps, sensor.exposure_ms)
+    with build_frame_renderer(cameras, sensor, scenario.fps, lighting, scenario.set, scenario.seed, geo, 3,
+                              cfg.wand_marker_radius_m, rasterizer=rasterizer) as renderer:
+        blobs, counts, times = _wand_blobs(renderer, motion, n_frames, noise_seed, progress)
+    pts = motion.points(times)
+    true_px = np.stack([cam.project(pts.reshape(-1, 3)).reshape(n_frames, 3, 2) for cam in cameras])
+    return {"times": times, "points": pts, "blobs": blobs, "true_px": true_px, "counts": counts}
+
+
+def _wand_blobs(renderer: FrameRenderer, motion: WandMotion, n_frames: int, noise_seed: int,
+                progress: Callable[[int], None] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The three blobs ``(C, F, 3, 2)`` of every camera frame, the blob counts ``(C, F)`` and the frame times ``(F,)``."""
+    cameras = renderer.cameras
+    times = mid_exposure_times(n_frames, renderer.fps, renderer.cfg.exposure_ms)
 
     def pose_at(ts: np.ndarray) -> list[Pose]:
         pts = motion.points(ts)
@@ -524,9 +537,7 @@ def render_wand(scenario: Scenario, cameras: list[VirtualCamera], lighting: Ligh
             blobs[c, fo.index], counts[c, fo.index] = detect_wand_blobs(fo.images[c], params, empty[c])
         if progress is not None:
             progress(1)
-    pts = motion.points(times)
-    true_px = np.stack([cam.project(pts.reshape(-1, 3)).reshape(n_frames, 3, 2) for cam in cameras])
-    return {"times": times, "points": pts, "blobs": blobs, "true_px": true_px, "counts": counts}
+    return blobs, counts, times
 
 
 def render_calibration_scene(scenario: Scenario, rng: np.random.Generator,
@@ -555,19 +566,21 @@ def render_calibration_scene(scenario: Scenario, rng: np.random.Generator,
     layout = board_texture_layout(spec, BOARD_TEXTURE_PX_PER_M, BOARD_MARGIN_SQUARES)
     poses = sample_board_poses(cameras, cfg, spec, layout, rng, path)
     seeds = rng.integers(0, 2**31, 2)
-    images, raster = render_board_views(scenario, cameras, lighting, spec, poses, int(seeds[0]), progress=progress)
     truth = Calibration(tuple(c.calibration_camera() for c in cameras))
-    scene = CalibrationScene(spec, truth, images, poses, cfg.board_thickness_m)
-    if cfg.wand and cfg.wand_frames > 0:
+    with Rasterizer() as raster:  # one GL context for the board pictures and the wand
+        images = render_board_views(scenario, cameras, lighting, spec, poses, int(seeds[0]), rasterizer=raster, progress=progress)
+        scene = CalibrationScene(spec, truth, images, poses, cfg.board_thickness_m)
+        if not (cfg.wand and cfg.wand_frames > 0):
+            return scene
         wand = wand_spec(cfg)
         motion = WandMotion.random(cfg, rng)
         w = render_wand(scenario, cameras, lighting, motion, cfg.wand_frames, int(seeds[1]), rasterizer=raster,
                         progress=progress)
-        scene.wand = wand
-        scene.wand_times = w["times"]
-        scene.wand_points = w["points"]
-        scene.wand_blobs_px = w["blobs"]
-        scene.wand_markers_px = label_collinear_wand(w["blobs"], wand)
-        scene.wand_true_px = w["true_px"]
-        scene.wand_blob_counts = w["counts"]
+    scene.wand = wand
+    scene.wand_times = w["times"]
+    scene.wand_points = w["points"]
+    scene.wand_blobs_px = w["blobs"]
+    scene.wand_markers_px = label_collinear_wand(w["blobs"], wand)
+    scene.wand_true_px = w["true_px"]
+    scene.wand_blob_counts = w["counts"]
     return scene

@@ -11,7 +11,8 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from contextlib import ExitStack, contextmanager
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -79,45 +80,45 @@ def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None =
                   keep_frames: bool = True, keep_ids: bool = True, progress=None) -> RenderedSequence:
     """Render every frame (in memory), calling ``on_frame`` for each as it is made."""
     sc = bench.scenario
-    renderer = bench.frame_renderer()
     outputs: list[FrameOutput] = []
     frames = []
-    for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, sc.seed):
-        if on_frame is not None:
-            on_frame(out)
-        if keep_frames:
-            frames.append(out.images)
-        if not keep_ids:
-            out.ids = None
-        outputs.append(out)
-        if progress is not None:
-            progress(1)
+    with bench.frame_renderer() as renderer:
+        for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, sc.seed):
+            if on_frame is not None:
+                on_frame(out)
+            if keep_frames:
+                frames.append(out.images)
+            if not keep_ids:
+                out.ids = None
+            outputs.append(out)
+            if progress is not None:
+                progress(1)
     gt = _ground_truth(bench, outputs, keep_ids)
     return RenderedSequence(gt, np.stack(frames) if keep_frames and frames else None)
 
 
-def write_render_outputs(bench: Stage, seq_writer_dir: Path, png: bool) -> tuple[Callable[[FrameOutput], None], Callable[[], None]]:
-    """Per-frame writer (MP4 per camera, PNG on request) and its closer."""
+@contextmanager
+def render_writer(bench: Stage, folder: Path, png: bool) -> Iterator[Callable[[FrameOutput], None]]:
+    """``with render_writer(stage, folder, png) as on_frame:`` writes each frame given to
+    ``on_frame`` into ``folder/videos/<camera>.mp4`` (and ``folder/frames/<camera>/NNNNNN.png``);
+    the videos are closed on the way out, whatever happens."""
     sc = bench.scenario
-    videos = seq_writer_dir / "videos"
+    videos = folder / "videos"
     videos.mkdir(parents=True, exist_ok=True)
-    writers = {c.name: Mp4Writer(videos / f"{c.name}.mp4", c.width, c.height, sc.fps) for c in bench.cameras}
     if png:
         for c in bench.cameras:
-            (seq_writer_dir / "frames" / c.name).mkdir(parents=True, exist_ok=True)
+            (folder / "frames" / c.name).mkdir(parents=True, exist_ok=True)
+    with ExitStack() as stack:
+        writers = [stack.enter_context(Mp4Writer(videos / f"{c.name}.mp4", c.width, c.height, sc.fps)) for c in bench.cameras]
 
-    def on_frame(out: FrameOutput) -> None:
-        interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the render here
-        for ci, c in enumerate(bench.cameras):
-            writers[c.name].write(out.images[ci])
-            if png:
-                cv2.imwrite(str(seq_writer_dir / "frames" / c.name / f"{out.index:06d}.png"), out.images[ci][..., ::-1])
+        def on_frame(out: FrameOutput) -> None:
+            interrupts.raise_if_pending()  # a signal swallowed by a C callback stops the render here
+            for ci, c in enumerate(bench.cameras):
+                writers[ci].write(out.images[ci])
+                if png:
+                    cv2.imwrite(str(folder / "frames" / c.name / f"{out.index:06d}.png"), out.images[ci][..., ::-1])
 
-    def close() -> None:
-        for w in writers.values():
-            w.close()
-
-    return on_frame, close
+        yield on_frame
 
 
 def contact_sheet_rows(n_frames: int, n_rows: int = 3) -> list[int]:
@@ -146,11 +147,8 @@ def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, prog
     """
     with AtomicOutputDir(out, scenario=scenario.name, kind="render") as tmp:  # refuses before anything renders
         bench = build_stage(scenario)
-        on_frame, close = write_render_outputs(bench, tmp, png)
-        try:
+        with render_writer(bench, tmp, png) as on_frame:
             seq = render_frames(bench, on_frame=on_frame, keep_frames=True, keep_ids=True, progress=progress)
-        finally:
-            close()
         seq.ground_truth.save(tmp / "ground_truth")
         cal = seq.ground_truth.calibration()
         cal.save_opencv_yaml(tmp / "calibration.yml")

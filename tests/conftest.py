@@ -1,0 +1,54 @@
+"""What the tests share: where the project's real data is, and the fast subset.
+
+The real captures, BVH clips and calibration pictures live in ``shared/data`` beside the
+repository (``../shared/data``; its README describes every file). Tests that need them
+take the :func:`shared_data` fixture, which skips them, naming the path it looked at, when
+the folder is not there.
+
+``pytest -m "not slow"`` runs the fast subset for the inner loop (under a minute on two
+cores); CI runs everything. A test is marked ``slow`` when it takes more than a few
+seconds (an end-to-end render and run, a real capture through the whole pipeline).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+#: ``../shared/data`` relative to the repository.
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """The shared real-data folder (the test is skipped when it is missing)."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared real data not found at {SHARED_DATA} (put shared/ beside the repository)")
+    return SHARED_DATA
+
+
+#: Whole modules that run the bench end to end (``simbench run``, sweeps, suites, the CLIs on
+#: rendered videos, signals sent to running processes, real captures through the labelling):
+#: seconds to tens of seconds each, so they are ``slow``. Single slow tests elsewhere carry
+#: ``@pytest.mark.slow`` themselves.
+SLOW_MODULES = frozenset({
+    "test_calibration_scene_run.py",
+    "test_check_real_motion.py",
+    "test_check_suite.py",
+    "test_mocap_markers_inputs.py",
+    "test_model_labelling.py",
+    "test_run_interrupts.py",
+    "test_run_markers.py",
+    "test_run_real_motion.py",
+    "test_shirt_pipeline_run.py",
+    "test_study_trackers.py",
+    "test_sweep_kill_resume.py",
+    "test_sweep_run.py",
+})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SLOW_MODULES:
+            item.add_marker(pytest.mark.slow)
