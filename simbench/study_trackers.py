@@ -53,7 +53,7 @@ Scores (definitions in :mod:`eval.tracking_metrics`, the same for every tracker)
   ``slow``, ``rapid`` and ``acceleration`` videos without a loss, pooled: sample count,
   99 % confidence interval of the mean, Shapiro-Wilk test.
 * Tables V-VII: per-frame tracking cost for 1..30 markers over 200 frames, percentiles
-  (:func:`mocap.bench_trackers.run_tracker_benchmark`, measured in the same run, after
+  (:func:`simbench.benchmarks.trackers.run_tracker_benchmark`, measured in the same run, after
   the videos, in the main process), and the ratio of the median cost at 30 markers to
   that at 1 beside the paper's (:func:`cost_ratios`).
 * Findings (:func:`findings`): seed 000's four conclusions, each "reproduced", "not
@@ -88,7 +88,7 @@ from typing import Callable
 import numpy as np
 
 from eval import tracking_metrics as tm
-from mocap.bench_trackers import BenchmarkTable, run_tracker_benchmark
+from simbench.benchmarks.trackers import BenchmarkTable, run_tracker_benchmark
 from mocap.detection import DetectionParams, detect_markers
 from mocap.tracking import CameraTracks, track_camera
 from mocap.trackers import available_trackers, get_tracker
@@ -1800,7 +1800,7 @@ def format_report(result: StudyResult, frames: dict[str, tuple[str, str]] | None
         "over the videos of the category in which that tracker lost nothing. Interval: Student's t, "
         f"{cfg.confidence:.0%}, of the mean; Shapiro-Wilk on the same sample (scipy).",
         f"* **Cost** (Tables V-VII): wall time of one predict-associate-update step of all markers, over "
-        f"{result.cost.n_frames} frames of smooth synthetic paths (`mocap.bench_trackers`), after the videos, "
+        f"{result.cost.n_frames} frames of smooth synthetic paths (`simbench.benchmarks.trackers`), after the videos, "
         "in the same run.", "",
         "## Seed 000's findings, checked", "",
         f"Each finding tested on the bench's videos at the {1 - ALPHA:.0%} level: losses by the exact McNemar test "

@@ -5,15 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap.bench_trackers import (
-    CATEGORIES,
-    REFERENCE_NAME,
-    format_benchmark_table,
-    format_robustness_table,
-    run_robustness_check,
-    run_tracker_benchmark,
-    synthetic_trial,
-)
+from mocap.tracker_trials import CATEGORIES, format_robustness_table, run_robustness_check, synthetic_trial
+from simbench.benchmarks.trackers import REFERENCE_NAME, format_benchmark_table, run_tracker_benchmark
 from mocap.trackers import COASTING, LOST, TRACKED
 from mocap.tracking import track_camera, track_cameras
 from mocap.types import Detections, Tracks2D

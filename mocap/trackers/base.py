@@ -70,11 +70,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
 from mocap.trackers.gating import unique_gated_pairs
+from mocap.types import COASTING, LOST, TRACKED  # a label's status (defined with Tracks2D)
 
-#: Status codes, identical to :class:`mocap.types.Tracks2D`.
-LOST: int = 0
-TRACKED: int = 1
-COASTING: int = 2
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ few dozen element-wise numpy operations for all markers and models at once.
 
 Frame-counted parameters (``p_stay``, ``max_merge_frames``, ``max_coast_frames``) are
 per frame; the defaults were chosen on 30 fps and 200 Hz test data (see
-:func:`mocap.bench_trackers.run_robustness_check` and ``tests/test_trackers_*.py``).
+:func:`mocap.tracker_trials.run_robustness_check` and ``tests/test_trackers_*.py``).
 """
 
 from __future__ import annotations

@@ -21,14 +21,12 @@ import importlib
 import inspect
 from importlib.metadata import entry_points
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from mocap.errors import MocapInputError
-
-if TYPE_CHECKING:
-    from mocap.trackers.base import Tracker2D
+from mocap.trackers.base import Tracker2D
 
 ENTRY_POINT_GROUP = "mocap.trackers"
 
@@ -57,8 +55,6 @@ def register_tracker(name: str | None = None, *, replace: bool = False) -> Calla
     >>> @register_tracker("my_kalman")            # doctest: +SKIP
     ... class MyKalman(Tracker2D): ...
     """
-    from mocap.trackers.base import Tracker2D
-
     def decorate(cls: type) -> type:
         if not (isinstance(cls, type) and issubclass(cls, Tracker2D)):
             raise TypeError(f"register_tracker: {cls!r} is not a subclass of mocap.trackers.Tracker2D")
@@ -84,13 +80,19 @@ def _qualname(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
+#: Modules whose trackers register themselves when imported (the built-in trackers).
+BUILTIN_MODULES = ("mocap.trackers.openmocap", "mocap.trackers.alpha_beta", "mocap.trackers.kalman",
+                   "mocap.trackers.condensation", "mocap.trackers.imm")
+
+
 def _load_builtins() -> None:
-    import mocap.trackers  # noqa: F401  (registers the built-in trackers)
+    """Import the built-in trackers' modules (their decorators fill the registry), by name as a
+    plugin's: they import this module, so importing them here at the top would be a cycle."""
+    for module in BUILTIN_MODULES:
+        importlib.import_module(module)
 
 
 def _from_entry_point(spec: str) -> type:
-    from mocap.trackers.base import Tracker2D
-
     module_name, _, attr = spec.partition(":")
     if not module_name or not attr:
         raise TrackerNotFoundError(f"tracker {spec!r}: an entry point must read 'package.module:ClassName'")
@@ -143,8 +145,6 @@ def get_tracker(name: str) -> type:
 
 def tracker_params(name: str) -> dict[str, Any]:
     """Documented keyword parameters of a tracker and their defaults (its own and the base's)."""
-    from mocap.trackers.base import Tracker2D
-
     cls = get_tracker(name)
     params: dict[str, Any] = {}
     for klass in reversed(cls.__mro__):

@@ -34,7 +34,7 @@ def bench_trackers(frames: int = typer.Option(200, help="frames per measurement"
                    seed: int = typer.Option(0, help="seed of the synthetic trajectories")) -> None:
     """Per-frame tracking cost of every tracker for 1..30 markers (seed 000 Tables V-VII),
     with a plain per-marker filterpy KalmanFilter loop as the reference."""
-    from mocap.bench_trackers import format_benchmark_table, run_tracker_benchmark  # numba, filterpy: on use
+    from simbench.benchmarks.trackers import format_benchmark_table, run_tracker_benchmark  # numba, filterpy: on use
 
     print(format_benchmark_table(run_tracker_benchmark(n_frames=frames, seed=seed)))
 
