@@ -16,8 +16,9 @@ from types import SimpleNamespace
 
 from eval import tracking_metrics as tm
 from mocap.trackers import KalmanTracker, available_trackers, register_tracker, unregister_tracker
-from simbench import study_trackers as st
-from simbench import study_trackers_fit as sf
+from simbench.studies import trackers as st
+from simbench.studies.trackers import fit as sf
+from simbench.studies.trackers import videos
 
 PLUGIN = "study_test_kalman"
 
@@ -194,9 +195,9 @@ def test_video_plans_are_seeded_start_in_the_image_and_move_at_the_category_spee
         again = st.plan_video(cfg, category, k)
         np.testing.assert_array_equal(plan.knot_xy, again.knot_xy)
         xy = plan.xy_at(frames)
-        assert st._inside(xy[:3])
+        assert videos._inside(xy[:3])
         if category in ("slow", "rapid", "acceleration"):
-            assert st._inside(xy)  # the fitted motions stay in the image
+            assert videos._inside(xy)  # the fitted motions stay in the image
         step = np.linalg.norm(np.diff(xy, axis=0), axis=-1)  # px/frame
         speeds_seen.append(np.median(step))
         if category == "occlusion":

@@ -15,7 +15,7 @@ period of the accelerated motions.
     sum over alpha_beta, kalman_openmocap, condensation of log(bench mean / paper mean) ** 2
 
 where a bench mean pools the prediction errors of ``n_videos`` videos (drawn with
-:func:`simbench.study_trackers.plan_video` from a seed other than the study's) without
+:func:`simbench.studies.trackers.videos.plan_video` from a seed other than the study's) without
 a loss, as the paper pooled its videos. The videos are not rendered: the detections are
 the markers' true mid-exposure positions plus Gaussian noise of the rendered
 detector's size (``noise_px``; measured on the study's rendered videos: 0.10 px mean
@@ -24,7 +24,7 @@ second. The parameters are drawn per video from a range around each fitted centr
 speed +-15 %, leg length +-30 %, turn +-45 deg; top speed +-15 %, period +-30 %.
 
 ``simbench study fit-difficulty`` runs it and prints the values to put into
-:data:`simbench.study_trackers.CALIBRATED_DIFFICULTY`; the rendered study then checks
+:data:`simbench.studies.trackers.config.CALIBRATED_DIFFICULTY`; the rendered study then checks
 them (its Tables II-IV beside the paper's).
 
 Occlusion and swap videos have no prediction-error table in the paper, so nothing there
@@ -41,11 +41,14 @@ from scipy.optimize import minimize
 
 from eval import tracking_metrics as tm
 from mocap.tracking import track_camera
-from simbench import study_trackers as st
+from simbench.stage.renderer import mid_exposure_times
+from simbench.studies.trackers.config import AccelerationDifficulty, CALIBRATED_DIFFICULTY, ERROR_CATEGORIES, IMAGE_H, IMAGE_W, PAPER_ERRORS, SEED_TRACKERS, StudyConfig, VideoDifficulty, ZigzagDifficulty
+from simbench.studies.trackers.tracking import tracker_rng
+from simbench.studies.trackers.videos import plan_video
 
 #: The paper's three trackers, whose errors are fitted.
-FIT_TRACKERS = st.SEED_TRACKERS
-FIT_CATEGORIES = st.ERROR_CATEGORIES
+FIT_TRACKERS = SEED_TRACKERS
+FIT_CATEGORIES = ERROR_CATEGORIES
 #: Relative half widths of the drawn ranges around a fitted centre.
 SPEED_SPREAD = 0.15
 LEG_SPREAD = 0.30
@@ -69,7 +72,7 @@ class CategoryFit:
 
     category: str
     centre: dict[str, float]
-    difficulty: st.ZigzagDifficulty | st.AccelerationDifficulty
+    difficulty: ZigzagDifficulty | AccelerationDifficulty
     errors: dict[str, float]
     lost: dict[str, int]
     paper: dict[str, float]
@@ -83,23 +86,23 @@ class DifficultyFit:
     fitted slow speeds)."""
 
     categories: dict[str, CategoryFit]
-    difficulty: st.VideoDifficulty
+    difficulty: VideoDifficulty
     n_videos: int
     seed: int
     noise_px: float
     trackers: tuple[str, ...] = field(default=FIT_TRACKERS)
 
 
-def zigzag_difficulty(speed: float, leg_frames: float, turn_deg: float) -> st.ZigzagDifficulty:
+def zigzag_difficulty(speed: float, leg_frames: float, turn_deg: float) -> ZigzagDifficulty:
     """Zigzag ranges around the centres ``speed`` px/frame, ``leg_frames``, ``turn_deg``."""
     lo_t, hi_t = max(0.0, turn_deg - TURN_SPREAD_DEG), min(180.0, turn_deg + TURN_SPREAD_DEG)
-    return st.ZigzagDifficulty(speed_px_per_frame=_spread(speed, SPEED_SPREAD), leg_frames=_spread(leg_frames, LEG_SPREAD),
+    return ZigzagDifficulty(speed_px_per_frame=_spread(speed, SPEED_SPREAD), leg_frames=_spread(leg_frames, LEG_SPREAD),
                                turn_deg=(round(lo_t, 1), round(hi_t, 1)))
 
 
-def acceleration_difficulty(top_speed: float, period_s: float) -> st.AccelerationDifficulty:
+def acceleration_difficulty(top_speed: float, period_s: float) -> AccelerationDifficulty:
     """Acceleration ranges around the centres ``top_speed`` px/frame and ``period_s`` s."""
-    return st.AccelerationDifficulty(top_speed_px_per_frame=_spread(top_speed, SPEED_SPREAD),
+    return AccelerationDifficulty(top_speed_px_per_frame=_spread(top_speed, SPEED_SPREAD),
                                      period_s=_spread(period_s, PERIOD_SPREAD))
 
 
@@ -114,20 +117,20 @@ _BUILDERS = {"slow": (zigzag_difficulty, ("speed_px_per_frame", "leg_frames", "t
 START = {"slow": (22.0, 6.0, 90.0), "rapid": (24.0, 4.0, 100.0), "acceleration": (12.0, 1.5)}
 
 
-def synthetic_video(config: st.StudyConfig, category: str, index: int, noise_px: float
+def synthetic_video(config: StudyConfig, category: str, index: int, noise_px: float
                     ) -> tuple[np.ndarray, list[np.ndarray]]:
     """A video of the study's plan without rendering: true mid-exposure positions
     (F, M, 2) px and per frame the detections, those positions plus Gaussian noise of
     ``noise_px`` per axis (in a shuffled order)."""
-    plan = st.plan_video(config, category, index)
-    times = np.arange(config.n_frames) / config.fps + 0.5 * config.exposure_ms * 1e-3
+    plan = plan_video(config, category, index)
+    times = mid_exposure_times(config.n_frames, config.fps, config.exposure_ms)
     true = plan.xy_at(times)
     rng = np.random.default_rng(np.random.SeedSequence([plan.render_seed, 2]))
     noisy = true + rng.normal(0.0, noise_px, true.shape)
     return true, [noisy[f, rng.permutation(true.shape[1])] for f in range(len(true))]
 
 
-def mean_errors(config: st.StudyConfig, category: str, n_videos: int, noise_px: float,
+def mean_errors(config: StudyConfig, category: str, n_videos: int, noise_px: float,
                 trackers: tuple[str, ...] = FIT_TRACKERS) -> tuple[dict[str, float], dict[str, int]]:
     """Mean prediction error (px) of each tracker over the ``n_videos`` synthetic videos
     of ``category`` in which it lost nothing, and the number of videos with a loss
@@ -136,11 +139,11 @@ def mean_errors(config: st.StudyConfig, category: str, n_videos: int, noise_px: 
     lost = {t: 0 for t in trackers}
     for k in range(n_videos):
         true, dets = synthetic_video(config, category, k, noise_px)
-        visible = (true[..., 0] >= 0) & (true[..., 0] <= st.IMAGE_W - 1) & (true[..., 1] >= 0) & (true[..., 1] <= st.IMAGE_H - 1)
+        visible = (true[..., 0] >= 0) & (true[..., 0] <= IMAGE_W - 1) & (true[..., 1] >= 0) & (true[..., 1] <= IMAGE_H - 1)
         L = true.shape[1]
         for t in trackers:
             tracks = track_camera(dets, true[0], [f"m{m}" for m in range(L)], t, config.dt,
-                                  st.tracker_rng(config, category, k, t))
+                                  tracker_rng(config, category, k, t))
             losses = tm.label_losses(true, visible, tracks.estimate, tracks.status, tracks.xy, config.loss_radius_px)
             if losses.lost.any():
                 lost[t] += 1
@@ -160,8 +163,8 @@ def fit_category(category: str, n_videos: int = 40, seed: int = 1, noise_px: flo
     if category not in _BUILDERS:
         raise ValueError(f"category must be one of {', '.join(_BUILDERS)}, got {category!r}")
     build, names = _BUILDERS[category]
-    paper = dict(paper) if paper is not None else {t: st.PAPER_ERRORS[category][t][2] for t in FIT_TRACKERS}
-    base = st.StudyConfig(seed=seed)
+    paper = dict(paper) if paper is not None else {t: PAPER_ERRORS[category][t][2] for t in FIT_TRACKERS}
+    base = StudyConfig(seed=seed)
     cache: dict[tuple[float, ...], tuple[float, dict, dict]] = {}
 
     def evaluate(logx: np.ndarray) -> float:
@@ -201,7 +204,7 @@ def fit_difficulty(n_videos: int = 40, seed: int = 1, noise_px: float = 0.08,
                    categories: tuple[str, ...] = FIT_CATEGORIES, max_evaluations: int = 150) -> DifficultyFit:
     """Fit every error category; occlusion and swap markers move at the fitted slow speeds."""
     fits = {c: fit_category(c, n_videos, seed, noise_px, max_evaluations=max_evaluations) for c in categories}
-    d = st.CALIBRATED_DIFFICULTY
+    d = CALIBRATED_DIFFICULTY
     repl = {c: f.difficulty for c, f in fits.items()}
     if "slow" in fits:
         speed = fits["slow"].difficulty.speed_px_per_frame

@@ -1,8 +1,8 @@
 """``simbench study``: studies that regenerate a paper's experiments on the bench.
 
-``simbench study trackers --out DIR`` runs :mod:`simbench.study_trackers` (seed 000's
+``simbench study trackers --out DIR`` runs :mod:`simbench.studies.trackers` (seed 000's
 Tables I-VII for every registered tracker) and prints the tables; registered on the main
-app at the end of :mod:`simbench.cli`.
+app at the end of :mod:`simbench.cli.app`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from simbench.cli_common import console, user_errors
+from simbench.cli.common import console, user_errors
 from simbench.errors import SimbenchInputError
 
 study_app = typer.Typer(no_args_is_help=True, help="Regenerate a paper's experiments on the bench, with its numbers beside ours.")
@@ -47,7 +47,7 @@ def trackers(
     workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="rendering processes (default: up to 2 cores)"),
 ) -> None:
     """Seed 000's tracker comparison (losses, prediction errors, cost: Tables I-VII) on rendered videos."""
-    from simbench.study_trackers import CATEGORIES, StudyConfig, format_findings, format_tables, run_study, write_study
+    from simbench.studies.trackers import CATEGORIES, StudyConfig, format_findings, format_tables, run_study, write_study
 
     cats = _split_names(categories) or CATEGORIES
     try:
@@ -82,7 +82,7 @@ def fit_difficulty(
     max_evaluations: int = typer.Option(150, "--max-evaluations", min=5, help="Nelder-Mead evaluations per category"),
 ) -> None:
     """Fit the videos' motion so that seed 000's trackers reproduce its Tables II-IV; print the difficulty."""
-    from simbench.study_trackers_fit import FIT_CATEGORIES, fit_difficulty as fit, format_fit
+    from simbench.studies.trackers.fit import FIT_CATEGORIES, fit_difficulty as fit, format_fit
 
     cats = _split_names(categories) or FIT_CATEGORIES
     unknown = sorted(set(cats) - set(FIT_CATEGORIES))
