@@ -522,6 +522,17 @@ def validation_error_to_scenario_error(path: Path, exc: ValidationError) -> Scen
     return ScenarioError(path, loc, value, msg + extra)
 
 
+def read_toml_file(path: Path, where_they_live: str) -> dict:
+    """The table of a TOML file (scenario, sweep, suites); a :class:`ScenarioError` naming the
+    file when it is missing (``where_they_live`` says where such files are) or not TOML."""
+    if not path.is_file():
+        raise ScenarioError(path, "<file>", str(path), f"file not found; {where_they_live}")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+
+
 def parse_overrides(items: list[str]) -> dict[str, object]:
     """``FIELD=VALUE`` strings (``--set`` options) to a dict for :func:`load_scenario`'s ``overrides``;
     values parsed as TOML (numbers, strings, booleans, arrays), else kept as the string."""
@@ -546,12 +557,7 @@ def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) 
         naming the file, the field, the value and what is allowed.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(path, "<file>", str(path), "file not found; scenarios live in scenarios/*.toml")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    data = read_toml_file(path, "scenarios live in scenarios/*.toml")
     data.setdefault("name", path.stem)
     data["source_dir"] = str(path.parent.resolve())
     for dotted, value in (overrides or {}).items():

@@ -19,18 +19,8 @@ from mocap.labelling import (
     save_template,
 )
 from mocap.types import Detections
+from mocap.calib.synthetic import look_at
 
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    eye = np.asarray(eye, float)
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
 
 
 def room_rig() -> Calibration:

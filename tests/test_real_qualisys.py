@@ -19,21 +19,11 @@ from mocap.calibration import Calibration, Camera
 from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.tracking import track_cameras
 from mocap.types import Detections
+from mocap.calib.synthetic import look_at
 
 RATE_HZ = 200.0
 NOISE_PX = 0.1
 MARKER_RADIUS_M = 0.007
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    eye = np.asarray(eye, float)
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
 
 
 @pytest.fixture(scope="module")

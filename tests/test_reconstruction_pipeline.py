@@ -8,20 +8,10 @@ import pytest
 from mocap.calibration import Calibration, Camera
 from mocap.reconstruction import ReconstructionParams, reconstruct, relabel_views
 from mocap.types import Detections, Tracks2D
+from mocap.calib.synthetic import look_at
 
 RATE = 100.0
 F, M = 150, 8
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    eye = np.asarray(eye, float)
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
 
 
 def ring_rig(n: int = 4) -> Calibration:

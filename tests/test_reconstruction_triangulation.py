@@ -14,17 +14,7 @@ from mocap.triangulation import (
     triangulate,
     triangulate_dlt,
 )
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    eye = np.asarray(eye, float)
-    z = np.asarray(target, float) - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z])
-    return R, -R @ eye
+from mocap.calib.synthetic import look_at
 
 
 def ring_rig(n: int = 4, radius: float = 4.0, height: float = 2.2, f: float = 600.0, dist=(-0.12, 0.03, 0.001, -0.0015, 0.0)) -> Calibration:

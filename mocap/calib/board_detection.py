@@ -245,23 +245,12 @@ def _sides_cut(grid_px: np.ndarray, size: tuple[int, int], margin: float) -> lis
     The next row/column of corners outside the grid is extrapolated on each side; if it
     would fall outside the image (less ``margin``), the board is cut off there.
     """
-    w, h = size
     ext = []
     if grid_px.shape[0] > 1:
         ext += [2 * grid_px[0] - grid_px[1], 2 * grid_px[-1] - grid_px[-2]]
     if grid_px.shape[1] > 1:
         ext += [2 * grid_px[:, 0] - grid_px[:, 1], 2 * grid_px[:, -1] - grid_px[:, -2]]
-    pts = np.concatenate(ext) if ext else grid_px.reshape(-1, 2)
-    sides = []
-    if np.any(pts[:, 0] < margin):
-        sides.append("left")
-    if np.any(pts[:, 0] > w - 1 - margin):
-        sides.append("right")
-    if np.any(pts[:, 1] < margin):
-        sides.append("top")
-    if np.any(pts[:, 1] > h - 1 - margin):
-        sides.append("bottom")
-    return sides
+    return _border_sides(np.concatenate(ext) if ext else grid_px.reshape(-1, 2), size, margin)
 
 
 def _find_partial(gray: np.ndarray) -> np.ndarray | None:

@@ -29,7 +29,7 @@ exactly (``tests/test_motions_bvh.py``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -403,20 +403,8 @@ def _level_foot(target: np.ndarray, toe_dir: np.ndarray, ref_pitch_sin: float) -
     return frame @ min_rotation(unit(ball), np.array([1.0, 0.0, 0.0]))
 
 
-def retarget_bvh(
-    clip: BvhClip,
-    params: BodyParams,
-    *,
-    skip_frames: int | None = None,
-    reference: str = "rest",
-    up_axis: str = "y",
-    face_plus_x: bool = True,
-    center_xy: bool = True,
-    foot_contact: bool = True,
-    name_map: Mapping[str, str] | None = None,
-    name: str | None = None,
-) -> Motion:
-    """Retarget a BVH clip onto the humanoid of ``params``.
+def retarget_bvh(clip: BvhClip, params: BodyParams, **options: Any) -> Motion:
+    """Retarget a BVH clip onto the humanoid of ``params``: :func:`retarget_bvh_keys` as a :class:`Motion`.
 
     Each humanoid body follows one BVH joint (:func:`simbench.scenes.bvh_mapping.map_bvh_joints`; both CMU naming
     schemes and common aliases are known).  A body's world rotation is the BVH joint's
@@ -468,7 +456,4 @@ def retarget_bvh(
         Key poses at the BVH frame times, interpolated (C1) in between; the floor is at
         z = 0.
     """
-    return retarget_bvh_keys(
-        clip, params, skip_frames=skip_frames, reference=reference, up_axis=up_axis,
-        face_plus_x=face_plus_x, center_xy=center_xy, foot_contact=foot_contact, name_map=name_map, name=name,
-    ).motion()
+    return retarget_bvh_keys(clip, params, **options).motion()

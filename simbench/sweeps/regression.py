@@ -31,7 +31,6 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
-import tomllib
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -45,7 +44,7 @@ from rich.table import Table
 
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
-from simbench.scenario import FrozenModel, load_scenario, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, load_scenario, read_toml_file, validation_error_to_scenario_error
 from simbench.sweeps.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
 WORSE = ("higher", "lower", "either")
@@ -184,12 +183,7 @@ class Suites:
 
 def load_suites(path: str | Path) -> Suites:
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(path, "<file>", str(path), "file not found; suites live in scenarios/suites.toml (--suites FILE)")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    data = read_toml_file(path, "suites live in scenarios/suites.toml (--suites FILE)")
     try:
         return Suites(SuitesSpec.model_validate(data), path)
     except ValidationError as exc:

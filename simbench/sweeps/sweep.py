@@ -55,7 +55,6 @@ import socket
 import sys
 import threading
 import time
-import tomllib
 import traceback
 import warnings
 from dataclasses import dataclass, field
@@ -69,7 +68,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
-from simbench.scenario import FrozenModel, Scenario, load_scenario, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, Scenario, load_scenario, read_toml_file, validation_error_to_scenario_error
 
 VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
                     "pin", "pyrender2", "PyOpenGL", "duckdb", "dask", "distributed")
@@ -229,12 +228,7 @@ def run_id_for(scenario: Scenario, overrides: dict[str, Any]) -> str:
 def load_sweep(path: str | Path, extra_set: dict[str, Any] | None = None) -> Sweep:
     """Read, validate and expand a sweep file (``extra_set`` as if added to ``[set]``)."""
     path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(path, "<file>", str(path), "file not found; sweep files live in scenarios/sweeps/*.toml")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+    data = read_toml_file(path, "sweep files live in scenarios/sweeps/*.toml")
     data.setdefault("name", path.stem)
     try:
         spec = SweepSpec.model_validate(data)
