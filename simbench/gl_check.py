@@ -11,8 +11,11 @@ import sys
 
 import numpy as np
 
+from simbench.errors import GLUnavailableError
+
 
 def check() -> str:
+    # PyOpenGL and MuJoCo read their platform when first imported: configure it before loading them
     from simbench.render.gl_context import configure_gl_environment
 
     platform = configure_gl_environment()
@@ -38,8 +41,6 @@ def check() -> str:
 
 
 def main() -> int:
-    from simbench.errors import GLUnavailableError
-
     try:
         platform = check()
     except GLUnavailableError as exc:

@@ -35,6 +35,7 @@ import socket
 import sys
 import time
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Literal
 
@@ -75,8 +76,6 @@ class OutputMarker:
 
 
 def _version() -> str:
-    from importlib import metadata
-
     try:
         return metadata.version("simbench")
     except metadata.PackageNotFoundError:

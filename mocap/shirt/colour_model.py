@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.cluster.vq import kmeans2
 
 from mocap.errors import InputFileError, MocapInputError
 
@@ -286,8 +287,6 @@ def train_other_colours(images: list[np.ndarray], labels: list[np.ndarray], whit
     ColourModel or None
         None when fewer than 100 pixels are labelled not-shirt.
     """
-    from scipy.cluster.vq import kmeans2
-
     xs = []
     for img, lab, W in zip(images, labels, white_balance):
         m = np.asarray(lab) == NOT_SHIRT

@@ -44,6 +44,7 @@ class GLContext:
     def __init__(self, width: int = 640, height: int = 480) -> None:
         platform = configure_gl_environment()
         try:
+            # only the platform in use is imported: the other's native library may be missing
             if platform == "egl":
                 from pyrender.platforms.egl import EGLPlatform, get_default_device
 

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from simbench.render.gl_context import GLContext
 
@@ -248,9 +250,6 @@ def closed_outward_faces(faces: np.ndarray, positions: np.ndarray) -> np.ndarray
     such a component are always hidden behind its front faces (for a camera outside it),
     so culling them changes no pixel.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     F = np.asarray(faces, np.int64).reshape(-1, 3)
     P = np.asarray(positions, np.float64)
     nv = len(P)

@@ -50,6 +50,7 @@ import json
 import math
 import multiprocessing
 import os
+import platform
 import signal
 import socket
 import sys
@@ -58,13 +59,16 @@ import time
 import traceback
 import warnings
 from dataclasses import dataclass, field
+from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable, Iterator, Literal
 
 import duckdb
 import numpy as np
+import pyarrow as pa
 from pydantic import Field, ValidationError, field_validator, model_validator
 
+from eval.marker_metrics import per_marker_error_mm
 from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
@@ -298,9 +302,6 @@ _RUN_LOCK = threading.Lock()
 
 
 def package_versions() -> dict[str, str]:
-    from importlib import metadata
-    import platform
-
     out = {"python": platform.python_version()}
     for name in VERSION_PACKAGES:
         try:
@@ -312,10 +313,6 @@ def package_versions() -> dict[str, str]:
 
 def per_frame_table(result):
     """Long per-frame marker table of a run (``None`` without markers)."""
-    import pyarrow as pa
-
-    from eval.marker_metrics import per_marker_error_mm
-
     cap = result.capture
     if cap is None:
         return None
@@ -352,7 +349,7 @@ def execute_run(task: RunTask) -> RunRecord:
         started = time.time()
         warnings.simplefilter("always")
         try:
-            from simbench.pipelines.run import run_scenario
+            from simbench.pipelines.run import run_scenario  # MuJoCo and GL load in the workers only
 
             result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
             metrics = {k: float(v) for k, v in result.metrics.items()}
@@ -512,7 +509,7 @@ def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bo
 
 def iter_dask(tasks: list[RunTask], scheduler: str) -> Iterator[RunRecord]:
     """Run tasks on a Dask distributed cluster; yield records as they finish."""
-    from distributed import Client, as_completed
+    from distributed import Client, as_completed  # a Dask cluster only when --scheduler asks for one
 
     try:
         client = Client(scheduler, timeout="20s")
