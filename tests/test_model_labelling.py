@@ -32,12 +32,14 @@ NOISE_PX = 0.1
 MARKER_RADIUS_M = 0.007
 # Real captures whose physical markers have gaps (shared/data/README.md), with a window that keeps
 # the subject inside a 4-camera ring: (file, first frame, frames).
+_KNOWN_GAP = pytest.mark.xfail(reason="known gap (issue 12): markers on several rigid objects close together (wheelchair, "
+                               "glove, arm clusters) or on soft tissue seed wrong neighbour groups", strict=False)
 GAPPED = [
-    ("BTS.c3d", 0, 675),
-    ("kinematics_basket_sprint.c3d", 600, 360),
-    ("kinematics_racing_propulsion.c3d", 0, 700),
-    ("ADemo1_rewrite_c3d_pc_float.c3d", 0, 512),
-    ("Res16bits.c3d", 0, 100),
+    pytest.param("BTS.c3d", 0, 675, marks=_KNOWN_GAP),                           # measured 52 mm, 26/30 gaps, 2 swaps
+    pytest.param("kinematics_basket_sprint.c3d", 600, 360, marks=_KNOWN_GAP),    # 6.1 mm, 1 swap
+    pytest.param("kinematics_racing_propulsion.c3d", 0, 700, marks=_KNOWN_GAP),  # 209 mm, 52/225 gaps, 211 swaps
+    pytest.param("ADemo1_rewrite_c3d_pc_float.c3d", 0, 512, marks=_KNOWN_GAP),   # 3.0 mm, 19/55 gaps, 14 swaps
+    ("Res16bits.c3d", 0, 100),                                                   # 0.57 mm, 1/1, 0 swaps
 ]
 
 
@@ -165,10 +167,6 @@ def test_qualisys_with_seeded_gaps() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known gap (issue 12), measured: BTS 52 mm / 26 of 30 gaps / 2 swaps; basket sprint 6.1 mm / "
-                   "1 swap; racing propulsion 209 mm / 52 of 225 / 211 swaps; Codamotion 3.0 mm / 19 of 55 / 14 swaps; "
-                   "Res16bits passes (0.57 mm, 1/1, 0 swaps): skin-marker clusters of real subjects seed wrong groups",
-                   strict=False)
 @pytest.mark.parametrize("name,first,count", GAPPED)
 def test_real_captures_with_gaps(name: str, first: int, count: int) -> None:
     traj = read_c3d(C3D_DIR / name)
