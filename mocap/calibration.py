@@ -294,6 +294,9 @@ class Calibration:
             for field_name in ("size", "matrix", "distortions", "rotation", "translation"):
                 if field_name not in tab:
                     raise CalibrationFileError(path, f"{key}.{field_name}", "missing", "anipose calibration tables need size, matrix, distortions, rotation, translation")
+            if tab.get("fisheye", False):  # OpenCV's equidistant model: read as a pinhole it would be silently wrong
+                raise CalibrationFileError(path, f"{key}.fisheye", f"value {tab['fisheye']!r}", "fisheye cameras cannot be read as the "
+                                           "pinhole + k1 k2 p1 p2 k3 model every stage assumes; recalibrate with fisheye = false")
             try:
                 R = cv2.Rodrigues(np.asarray(tab["rotation"], dtype=np.float64).reshape(3, 1))[0]
                 cams.append(Camera(str(tab.get("name", key)), tuple(tab["size"]), tab["matrix"], tab["distortions"], R, tab["translation"]))

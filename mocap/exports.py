@@ -82,6 +82,22 @@ def opensim_to_world(xyz: np.ndarray) -> np.ndarray:
     return np.asarray(xyz, dtype=np.float64) @ _Z_UP_TO_Y_UP
 
 
+# Pose2Sim's TRC files (its ``zup2yup``: "X->Y, Y->Z, Z->X") hold ``(y, z, x)`` of its Z-up
+# calibration world: Y up like OpenSim's, but turned 90 deg about the vertical from
+# :func:`world_to_opensim`'s ``(x, z, -y)``. Rows: world axes from the file's (world = M @ file).
+_POSE2SIM_TO_WORLD = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def world_to_pose2sim(xyz: np.ndarray) -> np.ndarray:
+    """``(..., 3)`` world (Z up) -> Pose2Sim's TRC axes (Y up): ``(y, z, x)``."""
+    return np.asarray(xyz, dtype=np.float64) @ _POSE2SIM_TO_WORLD
+
+
+def pose2sim_to_world(xyz: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`world_to_pose2sim`: a Pose2Sim TRC's ``(X, Y, Z)`` -> world ``(Z, X, Y)``."""
+    return np.asarray(xyz, dtype=np.float64) @ _POSE2SIM_TO_WORLD.T
+
+
 @contextlib.contextmanager
 def _atomic_target(path: Path, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` if the block succeeds."""
@@ -462,7 +478,7 @@ def write_trc(
     traj: Trajectories,
     *,
     rate_hz: float | None = None,
-    axes: Literal["opensim", "world"] = "opensim",
+    axes: Literal["opensim", "pose2sim", "world"] = "opensim",
 ) -> Path:
     """Write labelled markers as an OpenSim TRC file (tab-separated, millimetres).
 
@@ -479,7 +495,8 @@ def write_trc(
     rate_hz : float, optional
         DataRate (default: from the median time step). The Time column keeps the real times.
     axes : {"opensim", "world"}
-        ``"opensim"`` (default): Y up, ``(x, z, -y)`` of the world; ``"world"``: as is (Z up).
+        ``"opensim"`` (default): Y up, ``(x, z, -y)`` of the world; ``"pose2sim"``: Y up as
+        Pose2Sim writes, ``(y, z, x)`` of the world; ``"world"``: as is (Z up).
 
     Returns
     -------
@@ -512,7 +529,7 @@ def write_trc(
 def read_trc(
     path: str | os.PathLike,
     *,
-    axes: Literal["opensim", "world", "auto"] = "opensim",
+    axes: Literal["opensim", "pose2sim", "world", "auto"] = "opensim",
     physical_only: bool = True,
 ) -> CaptureTrajectories:
     """Read a TRC file (ours, OpenSim's or a Motion Analysis one) as trajectories: world Z up, metres.
@@ -523,6 +540,9 @@ def read_trc(
     axes : {"opensim", "world", "auto"}
         Axes of the file. ``"opensim"`` (default, as :func:`write_trc` writes): Y up, rotated
         back to the world's Z up by :func:`opensim_to_world`, ``(x, y, z) -> (x, -z, y)``;
+        ``"pose2sim"``: Y up as Pose2Sim writes its TRC files (its ``zup2yup``), rotated back
+        by :func:`pose2sim_to_world`, ``(x, y, z) -> (z, x, y)`` (read as ``"opensim"``, such
+        a file comes out turned 90 deg about the vertical);
         ``"world"``: Z up, taken as is; ``"auto"``: TRC files do not say, so the data decide
         (the one axis along which every marker stays between -0.1 and 2.6 m is up, as
         :func:`read_c3d` does), and Y (OpenSim's convention) when they cannot. The result
@@ -539,8 +559,8 @@ def read_trc(
         it, e.g. to 0.033 s at 30 Hz), else the Time column as written.
     """
     path = Path(path)
-    if axes not in ("opensim", "world", "auto"):
-        raise MocapInputError(f"{path}: axes must be 'opensim' (Y up), 'world' (Z up) or 'auto', got {axes!r}")
+    if axes not in ("opensim", "pose2sim", "world", "auto"):
+        raise MocapInputError(f"{path}: axes must be 'opensim' (Y up), 'pose2sim' (Y up, Pose2Sim's), 'world' (Z up) or 'auto', got {axes!r}")
     try:
         lines = path.read_text().splitlines()
     except OSError as exc:
@@ -594,9 +614,9 @@ def read_trc(
     if axes == "auto":
         up, why = _decide_up_axis(xyz[:, kept], "axes = 'auto' (TRC does not say)", "y")  # Y: OpenSim's convention
     else:
-        up = "y" if axes == "opensim" else "z"
+        up = "y" if axes in ("opensim", "pose2sim") else "z"
         why = f"axes = {axes!r} given by the caller"
-    xyz = _rotate_to_z_up(xyz, up)
+    xyz = pose2sim_to_world(xyz) if axes == "pose2sim" else _rotate_to_z_up(xyz, up)
     return CaptureTrajectories([labels[i] for i in kept], xyz[:, kept], times, set_aside=set_aside, source_units=units,
                                source_up_axis=up, up_axis_reason=why, point_rate_hz=float(rate))
 
@@ -604,9 +624,11 @@ def read_trc(
 def _axes_out(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
     if axes == "opensim":
         return world_to_opensim(xyz)
+    if axes == "pose2sim":
+        return world_to_pose2sim(xyz)
     if axes == "world":
         return np.asarray(xyz, dtype=np.float64)
-    raise MocapInputError(f"{path}: axes must be 'opensim' (Y up) or 'world' (Z up), got {axes!r}")
+    raise MocapInputError(f"{path}: axes must be 'opensim' (Y up), 'pose2sim' (Y up, Pose2Sim's) or 'world' (Z up), got {axes!r}")
 
 
 # ---------------------------------------------------------------------------------------- CSV

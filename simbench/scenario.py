@@ -28,6 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
 
 from mocap.calib.boards import ARUCO_DICTIONARIES
+from mocap.calibration_formats import load_calibration
 from mocap.errors import MocapInputError
 from mocap.trackers import get_tracker
 from simbench.errors import ScenarioError, SimbenchInputError
@@ -229,6 +230,17 @@ class RigConfig(FrozenModel):
     width: int = 640
     height: int = 480
     distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    from_calibration: str | None = Field(
+        None, description="the whole rig from a calibration file (OpenCV .yml, anipose calibration.toml, Pose2Sim "
+        "Calib.toml or an EasyMocap folder; relative to the scenario): its cameras replace the circle above")
+
+    @model_serializer(mode="wrap")
+    def _omit_unused_calibration_file(self, handler):
+        # Rigs without a calibration file serialise (and hash) as they did before the field.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("from_calibration", 0) is None:
+            del data["from_calibration"]
+        return data
 
 
 class LightConfig(FrozenModel):
@@ -566,9 +578,26 @@ def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise validation_error_to_scenario_error(path, exc) from None
+    _check_rig_calibration(path, scenario)
     for key in ("bvh", "c3d", "trc"):
         given = getattr(scenario.motion, key)
         if given and not scenario.resolve_path(given).is_file():
             shared = "; it is real data from the project's shared/ folder: put shared/ beside the repository" if "shared" in Path(given).parts else ""
             raise ScenarioError(path, f"motion.{key}", given, f"file not found (looked for {scenario.resolve_path(given)}){shared}")
     return scenario
+
+
+def _check_rig_calibration(path: Path, scenario: Scenario) -> None:
+    """``rig.from_calibration``: the file loads (a fisheye or malformed file is refused, naming
+    the file's own field) and its cameras share one image size (the bench renders one)."""
+    given = scenario.rig.from_calibration if scenario.rig is not None else None
+    if given is None:
+        return
+    try:
+        calibration = load_calibration(scenario.resolve_path(given))
+    except MocapInputError as exc:
+        raise ScenarioError(path, "rig.from_calibration", given, str(exc)) from None
+    sizes = sorted({c.size for c in calibration})
+    if len(sizes) > 1:
+        raise ScenarioError(path, "rig.from_calibration", given,
+                            f"its cameras have different image sizes {sizes}; the bench renders one size for every camera")

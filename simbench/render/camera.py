@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from mocap.calibration import Camera
+from mocap.calibration_formats import load_calibration
 from simbench.scenario import CameraConfig, RigConfig
 
 
@@ -174,5 +175,9 @@ class VirtualCamera:
 def cameras_from_scenario(scenario) -> list[VirtualCamera]:
     cams = [VirtualCamera.from_config(c) for c in scenario.cameras]
     if scenario.rig is not None and not cams:
+        if scenario.rig.from_calibration is not None:  # a lab's own rig: exactly the file's cameras
+            calibration = load_calibration(scenario.resolve_path(scenario.rig.from_calibration))
+            return [VirtualCamera(c.name, c.size[0], c.size[1], c.K.copy(), c.dist.copy(), c.R.copy(), c.t.copy())
+                    for c in calibration]
         cams = VirtualCamera.rig(scenario.rig)
     return cams
