@@ -16,7 +16,7 @@ from pathlib import Path
 
 import typer
 
-from simbench.cli import bench, shirt, study, sweep
+from simbench.cli import bench, exchange, shirt, study, sweep
 from simbench.cli.common import EXIT_STAGE_FAILED, console, print_error, progress_bar, run_app, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Simulation-validated test bench for optical motion capture.")
@@ -112,6 +112,7 @@ def list_things() -> None:
 
 app.add_typer(bench.bench_app, name="bench")
 sweep.register(app)
+exchange.register(app)
 app.add_typer(shirt.shirt_app, name="shirt")
 app.add_typer(study.study_app, name="study")
 
