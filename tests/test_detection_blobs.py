@@ -141,6 +141,24 @@ def test_noise_only_gives_nothing(params: DetectionParams) -> None:
         assert len(detect_markers(img, params)) == 0
 
 
+def test_tiny_bright_markers_are_found_dim_specks_are_not() -> None:
+    """Markers 1-2 pixels across (a 14 mm marker 4-5 m from a 640x480 camera) are found
+    when their peak is clearly above the threshold; specks just over the threshold are not
+    (the IR threshold here is 20 grey levels: 6 sigma of noise 3 is 18, the floor 20)."""
+    rng = np.random.default_rng(11)
+    cells = grid_centres(rng, n_x=6, n_y=4, margin=30.0)
+    bright, dim = cells[::2], cells[1::2]
+    img = render(bright, rng, "gauss", peak=110.0, sigma=0.45, noise=3.0)
+    speck = np.round(dim).astype(int)
+    img[speck[:, 1], speck[:, 0]] = np.clip(img[speck[:, 1], speck[:, 0]].astype(int) + 28, 0, 255)
+    det = detect_markers(img, DetectionParams())
+    assert len(det) == len(bright) and match(det.xy, bright).max() < 0.35
+    tiny = det.area < 3
+    assert tiny.sum() >= len(bright) - 2, "most of the test's markers must be under the default minimum area"
+    strict = detect_markers(img, DetectionParams(small_peak_factor=0.0))  # the minimum area alone
+    assert len(strict) == len(bright) - tiny.sum()
+
+
 def test_otsu_threshold_finds_blobs() -> None:
     rng = np.random.default_rng(7)
     truth = grid_centres(rng)
