@@ -373,6 +373,36 @@ class ShirtPipelineConfig(FrozenModel):
     training_frames: int = Field(60, ge=2, description="frames of other takes the colour model and IK covariances are trained on")
 
 
+class PipelineConfig(FrozenModel):
+    """The capture system a run scores (issue 14): ``builtin`` (the project's, ``[markers_pipeline]``)
+    or ``command``: a user's program run on the inputs ``simbench export-inputs`` writes (its
+    ``format``), writing its 3D ``result`` into its output folder, scored like the project's.
+    ``command`` is a template: ``{inputs}``, ``{output}``, ``{python}`` (this Python) and
+    ``{scenario_dir}``; it runs in the scenario's folder, its output in ``command.log``."""
+
+    kind: Literal["builtin", "command"] = "builtin"
+    command: str | None = Field(None, description="e.g. '{python} ../examples/external_pipeline.py {inputs} {output}'")
+    format: Literal["opencv", "anipose", "pose2sim", "easymocap"] = "opencv"
+    result: str = Field("markers.trc", description="the 3D result the command writes in {output}: .c3d, .trc or .csv")
+    trc_axes: Literal["opensim", "pose2sim", "world", "auto"] = Field("opensim", description="axes of a .trc result")
+    timeout_s: float = Field(600.0, gt=0.0, le=86400.0)
+
+    @model_validator(mode="after")
+    def _command_given(self):
+        if self.kind == "command" and not (self.command or "").strip():
+            raise ValueError("kind = 'command' needs command = '...' (e.g. '{python} my_system.py {inputs} {output}')")
+        if self.kind == "builtin" and self.command is not None:
+            raise ValueError("command applies to kind = 'command' only")
+        if Path(self.result).suffix.lower() not in (".c3d", ".trc", ".csv") or Path(self.result).name != self.result:
+            raise ValueError(f"result = {self.result!r} must be a file name ending in .c3d, .trc or .csv")
+        if self.command is not None:
+            try:
+                self.command.format(inputs="", output="", python="", scenario_dir="")
+            except (KeyError, IndexError, ValueError) as exc:
+                raise ValueError(f"command template {self.command!r}: {exc!r}; use only {{inputs}} {{output}} {{python}} {{scenario_dir}}") from None
+        return self
+
+
 class CalibrationSceneConfig(FrozenModel):
     """Calibration pictures taken before the take (``simbench/stage/calibration_scene.py``).
 
@@ -452,6 +482,7 @@ class Scenario(FrozenModel):
     markers_pipeline: MarkerPipelineConfig = MarkerPipelineConfig()
     shirt_pipeline: ShirtPipelineConfig = ShirtPipelineConfig()
     calibration_scene: CalibrationSceneConfig | None = None
+    pipeline: PipelineConfig | None = Field(None, description="[pipeline] kind = 'command': score a user's system instead")
     source_dir: str = Field("", exclude=True, description="directory of the scenario file (relative paths)")
 
     @model_validator(mode="after")
@@ -467,6 +498,19 @@ class Scenario(FrozenModel):
             raise ValueError("markers_pipeline.calibration = 'estimated' needs a [calibration_scene] section "
                              "(the board and wand pictures the calibration is estimated from)")
         return self
+
+    @model_serializer(mode="wrap")
+    def _omit_builtin_pipeline(self, handler):
+        # Scenarios without a [pipeline] section serialise (and hash) as they did before it.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("pipeline", 0) is None:
+            del data["pipeline"]
+        return data
+
+    @property
+    def command_pipeline(self) -> "PipelineConfig | None":
+        """The ``[pipeline]`` when it names a command, else None (the project's pipeline runs)."""
+        return self.pipeline if self.pipeline is not None and self.pipeline.kind == "command" else None
 
     @property
     def n_frames(self) -> int:

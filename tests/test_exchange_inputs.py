@@ -9,7 +9,7 @@ import pytest
 
 from mocap.calibration_formats import load_calibration
 from mocap.labelling import load_template
-from simbench.exchange.inputs import LABEL_GATE_PX, export_inputs, read_detections_csv
+from simbench.pipelines.exchange.inputs import LABEL_GATE_PX, export_inputs, read_detections_csv
 from simbench.scenario import load_scenario
 from simbench.stage.ground_truth import load_ground_truth
 

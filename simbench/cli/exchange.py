@@ -22,7 +22,7 @@ def export_inputs(scenario: Path = typer.Argument(..., help="scenario TOML"),
     (OpenPose JSON and CSV), label template, board pictures (scenarios with a calibration scene)."""
     from mocap.calibration_formats import CALIBRATION_FORMATS
     from simbench.errors import SimbenchInputError
-    from simbench.exchange.inputs import export_inputs as export
+    from simbench.pipelines.exchange.inputs import export_inputs as export
     from simbench.output_dir import replaceable_state
     from simbench.scenario import load_scenario, parse_overrides
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import tempfile
 import time
 import traceback
 from contextlib import contextmanager, nullcontext
@@ -25,11 +27,15 @@ from typing import Callable, Iterator
 import numpy as np
 
 from mocap.detection import DetectionParams
+from mocap.types import Detections
 from mocap.errors import MocapInputError
 from mocap.labelling import save_template
 from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
+from simbench.pipelines.exchange.command import run_command
+from simbench.pipelines.exchange.inputs import write_inputs
+from simbench.pipelines.exchange.results import read_results, score_results
 from simbench.output_dir import AtomicOutputDir
 from simbench.pipelines.calibration import run_calibration
 from simbench.pipelines.markers import label_template, pipeline_params, score_markers, subject_model
@@ -107,7 +113,7 @@ class _Stages:
 
 
 def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=None, write_outputs: bool = True,
-                 progress_factory: ProgressFactory | None = None) -> RunResult:
+                 progress_factory: ProgressFactory | None = None, detection_noise_px: float = 0.0) -> RunResult:
     """Render, capture and score one scenario; write metrics.json, report and exports to ``out``.
 
     ``out`` is replaced only if it is an earlier bench output or an empty folder
@@ -119,14 +125,20 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
     ``metrics.json`` (``failed_stages``) and at the top of ``report.md``, and the output
     is moved into place as usual. An interruption (KeyboardInterrupt, or a signal the CLI
     turns into an exception) or a failure before the frames exist discards everything.
+
+    ``detection_noise_px`` adds Gaussian noise of that SD (px, per axis; drawn from the
+    scenario's seed) to every 2D detection before the marker pipeline: a regression injected
+    by ``simbench check --calibrate``, 0 for a normal run.
     """
     t0 = time.perf_counter()
     output = AtomicOutputDir(out, scenario=scenario.name, kind="run") if (out is not None and write_outputs) else None
     with output if output is not None else nullcontext() as tmp:
         run = _Run(scenario, _Stages(output.public if output is not None else str), tmp, t0)
+        run.detection_noise_px = float(detection_noise_px)
         run.render(progress)
         run.calibration_session()
         run.marker_capture()
+        run.command_pipeline()
         run.shirt_capture(progress_factory)
         run.finish()
         if tmp is not None:
@@ -148,6 +160,7 @@ class _Run:
         self.metrics: dict[str, float] = {}
         self.report_sections: list[str] = []
         self.capture: MarkerCapture | None = None
+        self.detection_noise_px = 0.0  # injected 2D detection noise (run_scenario's argument)
 
     def render(self, progress) -> None:
         """Render every frame: videos written, detections streamed, the contact sheet's frames kept;
@@ -189,7 +202,7 @@ class _Run:
     def marker_capture(self) -> None:
         """The marker pipeline on the streamed detections, then its scores. When only the
         skeleton solve fails, the markers are kept (the pipeline runs again without it)."""
-        if not self.has_markers:
+        if not self.has_markers or self.scenario.command_pipeline is not None:
             return
         if self.scenario.markers_pipeline.calibration == "estimated" and self.stages.failed("calibration session"):
             self.stages.record("marker pipeline", "not run: it needs the estimated calibration, and the calibration session failed")
@@ -211,12 +224,48 @@ class _Run:
             with self.stages.run("scoring"):
                 self.metrics.update(score_markers(self.gt, self.capture))
 
+    def command_pipeline(self) -> None:
+        """``[pipeline] kind = "command"``: the inputs folder (``inputs/``, in the pipeline's format,
+        with the calibration the run hands a pipeline), the user's command on it
+        (:mod:`simbench.pipelines.exchange.command`; ``command.log``), its 3D result scored like the project's
+        (``markers.*``). Without a run folder the inputs go to a temporary folder."""
+        cfg = self.scenario.command_pipeline
+        if cfg is None or not self.has_markers:
+            return
+        t1 = time.perf_counter()
+        with self.stages.run("command pipeline"), (nullcontext(self.tmp) if self.tmp is not None
+                                                    else tempfile.TemporaryDirectory(prefix="simbench-command-")) as base:
+            base = Path(base)
+            inputs = base / "inputs"
+            write_inputs(inputs, cfg.format, self.scenario, self.stage, self.gt, self.calibration, self.stream.detections,
+                         board=False)
+            if (base / "videos").is_dir():  # the take's videos, shared rather than copied
+                (inputs / "videos").mkdir(exist_ok=True)
+                for v in (base / "videos").iterdir():
+                    os.link(v, inputs / "videos" / v.name)
+            done = run_command(cfg, inputs.resolve(), (base / "command_output").resolve(), (base / "command.log").resolve(),
+                               Path(self.scenario.source_dir or "."))
+            traj = read_results(done.result, trc_axes=cfg.trc_axes)
+            self.metrics.update(score_results(traj, self.gt.markers_3d, self.gt.marker_visible, self.gt.marker_names,
+                                              self.gt.times, done.result))
+            self.timings["command_s"] = done.seconds
+            self.timings["command_ms_per_frame"] = 1e3 * done.seconds / max(self.gt.n_frames, 1)
+        self.timings["pipeline_s"] = time.perf_counter() - t1
+
     def _capture_with(self, params: MarkerPipelineParams) -> MarkerCapture:
         reference = self.stage.capture_reference()  # a real capture: rigid clusters instead of a skeleton
         rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0x7AC]))
-        return capture_from_detections(self.stream.detections, self.calibration, label_template(self.stage), self.gt.times,
+        return capture_from_detections(self._detections(), self.calibration, label_template(self.stage), self.gt.times,
                                        params, rng, subject_model(self.stage), self.stream.ms,
                                        marker_model=reference.marker_model() if reference is not None else None)
+
+    def _detections(self) -> list[list[Detections]]:
+        """The streamed detections, with the injected noise (``detection_noise_px``) if any."""
+        if self.detection_noise_px <= 0:
+            return self.stream.detections
+        rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0xD7E]))
+        return [[dataclasses.replace(d, xy=d.xy + rng.normal(0.0, self.detection_noise_px, d.xy.shape)) for d in cam]
+                for cam in self.stream.detections]
 
     def shirt_capture(self, progress_factory: ProgressFactory | None) -> None:
         """The colour-shirt pipeline of seed 001 (:mod:`simbench.pipelines.shirt`) when the subject wears the shirt."""
