@@ -1,7 +1,8 @@
 """Render a scenario: frames of every camera plus exact ground truth.
 
 ``render_scenario`` streams frames to MP4 (and optionally PNG) while it renders, keeps
-the ground truth of every frame, and writes everything into a temporary directory
+the ground truth of every frame (a few kB each; the images are dropped as they are
+written, so memory does not grow with the take: :func:`render_frames`), and writes everything into a temporary directory
 that replaces ``out`` only when the render has finished: an interrupted render leaves
 nothing half-written (:mod:`simbench.output_dir`: which paths may be replaced).
 """
@@ -43,9 +44,26 @@ class RenderedSequence:
     frames: np.ndarray | None    # (F, C, H, W, 3) uint8 when kept in memory
 
 
-def _ground_truth(bench: Stage, outputs: list[FrameOutput], keep_ids: bool) -> GroundTruth:
+@dataclass
+class FrameRecord:
+    """What the ground truth keeps of one rendered frame (a few kB; the images are not kept).
+
+    marker_visible_fraction : (C, M) float, visible area / expected area of each marker
+    """
+
+    time_s: float
+    marker_visible_fraction: np.ndarray
+    n_subframes: int
+
+    @classmethod
+    def of(cls, out: FrameOutput) -> "FrameRecord":
+        return cls(out.time_s, out.marker_visible_fraction, out.n_subframes)
+
+
+def _ground_truth(bench: Stage, records: list[FrameRecord], id_maps: list[np.ndarray] | None) -> GroundTruth:
+    """The ground truth of the frames ``records`` describe; ``id_maps``: one ``(F, H, W)`` int16 array per camera, or None."""
     sc = bench.scenario
-    times = np.array([o.time_s for o in outputs])
+    times = np.array([o.time_s for o in records])
     st = bench.states(times)
     cams = bench.cameras
     M = len(bench.marker_names)
@@ -54,7 +72,7 @@ def _ground_truth(bench: Stage, outputs: list[FrameOutput], keep_ids: bool) -> G
     for ci, cam in enumerate(cams):
         if M:
             m2d[:, ci] = cam.project(st.marker_xpos.reshape(-1, 3)).reshape(F, M, 2)
-    vis_frac = np.stack([o.marker_visible_fraction for o in outputs]) if outputs else np.zeros((0, C, M))
+    vis_frac = np.stack([o.marker_visible_fraction for o in records]) if records else np.zeros((0, C, M))
     P = len(bench.prop_names)
     prop_poses = np.stack([st.prop_poses[n] for n in bench.prop_names], axis=1) if P else np.zeros((F, 0, 4, 4))
     light = np.stack([bench.lighting.intensities_at(float(t)) for t in times]) if F else np.zeros((0, len(bench.lighting.names)))
@@ -68,33 +86,45 @@ def _ground_truth(bench: Stage, outputs: list[FrameOutput], keep_ids: bool) -> G
         joint_names=list(BODY_NAMES), hinge_names=bench.hinge_names, qpos=st.qpos[:, :40].copy(),
         joint_centres=st.joint_centres.copy(), prop_names=list(bench.prop_names), prop_poses=prop_poses,
         light_names=list(bench.lighting.names), light_intensity=light,
-        n_subframes=np.array([o.n_subframes for o in outputs]), fps=sc.fps,
+        n_subframes=np.array([o.n_subframes for o in records]), fps=sc.fps,
         scenario_name=sc.name, scenario_hash=sc.content_hash(),
     )
-    if keep_ids:
-        gt.id_maps = {c.name: np.stack([o.ids[ci] for o in outputs]) for ci, c in enumerate(cams)}
+    if id_maps is not None:
+        gt.id_maps = {c.name: id_maps[ci] for ci, c in enumerate(cams)}
     return gt
 
 
 def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None = None,
                   keep_frames: bool = True, keep_ids: bool = True, progress=None) -> RenderedSequence:
-    """Render every frame (in memory), calling ``on_frame`` for each as it is made."""
-    sc = bench.scenario
-    outputs: list[FrameOutput] = []
-    frames = []
+    """Render every frame, calling ``on_frame`` for each as it is made.
+
+    Memory does not grow with the take unless asked: of each frame only a
+    :class:`FrameRecord` is kept (its time, marker visibility and sub-frame count, what
+    the ground truth needs besides the simulated states); the images are dropped once
+    ``on_frame`` has returned (``on_frame`` copies what it wants to keep). ``keep_frames``
+    keeps every image (``(F, C, H, W, 3)`` uint8, ~0.9 MiB per 640x480 camera-frame) and
+    ``keep_ids`` every id map (``(F, H, W)`` int16 per camera, ~0.6 MiB per camera-frame),
+    each in one array filled in place (no second copy when the take ends).
+    """
+    records: list[FrameRecord] = []
+    F, cams = len(bench.frame_times()), bench.cameras
+    frames = np.empty((F, len(cams), cams[0].height, cams[0].width, 3), np.uint8) if keep_frames and F else None
+    ids = [np.empty((F, c.height, c.width), np.int16) for c in cams] if keep_ids else None
     with bench.frame_renderer() as renderer:
-        for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, sc.seed):
+        for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, bench.scenario.seed):
             if on_frame is not None:
                 on_frame(out)
-            if keep_frames:
-                frames.append(out.images)
-            if not keep_ids:
-                out.ids = None
-            outputs.append(out)
+            if frames is not None:
+                frames[out.index] = out.images
+            if ids is not None:
+                for ci in range(len(cams)):
+                    ids[ci][out.index] = out.ids[ci]
+            records.append(FrameRecord.of(out))
+            del out  # the frame's images and id maps go now, not when the next frame replaces them
             if progress is not None:
                 progress(1)
-    gt = _ground_truth(bench, outputs, keep_ids)
-    return RenderedSequence(gt, np.stack(frames) if keep_frames and frames else None)
+    gt = _ground_truth(bench, records, ids)
+    return RenderedSequence(gt, frames)
 
 
 @contextmanager
@@ -147,13 +177,21 @@ def render_scenario(scenario: Scenario, out: str | Path, png: bool = False, prog
     """
     with AtomicOutputDir(out, scenario=scenario.name, kind="render") as tmp:  # refuses before anything renders
         bench = build_stage(scenario)
-        with render_writer(bench, tmp, png) as on_frame:
-            seq = render_frames(bench, on_frame=on_frame, keep_frames=True, keep_ids=True, progress=progress)
+        rows = set(contact_sheet_rows(scenario.n_frames))
+        sheet: dict[int, np.ndarray] = {}  # the contact sheet's frames: the only images kept
+        with render_writer(bench, tmp, png) as write:
+
+            def on_frame(fo: FrameOutput) -> None:
+                write(fo)
+                if fo.index in rows:
+                    sheet[fo.index] = fo.images.copy()
+
+            # The id maps are kept for ground_truth/ids.npz (~0.6 MiB per 640x480 camera-frame).
+            seq = render_frames(bench, on_frame=on_frame, keep_frames=False, keep_ids=True, progress=progress)
         seq.ground_truth.save(tmp / "ground_truth")
         cal = seq.ground_truth.calibration()
         cal.save_opencv_yaml(tmp / "calibration.yml")
         cal.save_toml(tmp / "calibration.toml")
-        write_contact_sheet(bench, seq.ground_truth, {k: seq.frames[k] for k in contact_sheet_rows(seq.ground_truth.n_frames)},
-                            tmp / "contact_sheet.png")
+        write_contact_sheet(bench, seq.ground_truth, sheet, tmp / "contact_sheet.png")
         save_scenario_copy(scenario, tmp)
     return seq
