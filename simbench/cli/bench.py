@@ -66,3 +66,31 @@ def bench_shirt(
     from simbench.benchmarks.shirt import run_shirt_benchmark  # faiss, Pinocchio, GL: on use
 
     run_shirt_benchmark(n_frames=frames, scenario_path=str(scenario) if scenario else None)
+
+
+@bench_app.command("memory")
+@user_errors
+def bench_memory(
+    duration: float = typer.Option(60.0, "--duration", help="length of the take (s), overrides the scenario's duration_s"),
+    scenario: Path = typer.Option(Path("scenarios/quickstart.toml"), "--scenario", help="scenario TOML (default: the quickstart, 4 cameras)"),
+    set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set rig.count=6"),
+    every: int = typer.Option(100, "--every", help="print a row every this many frames"),
+    out: Optional[Path] = typer.Option(None, "--out", help="keep the run's outputs here (default: a temporary folder, removed)"),
+) -> None:
+    """RSS against frames rendered for a long take run as `simbench run` runs it; peak RSS and the
+    growth from frame 300 to the end, beside the RSS before the run and the size of one camera-frame."""
+    from simbench.benchmarks.memory import run_memory_benchmark  # MuJoCo, GL: on use
+    from simbench.output_dir import replaceable_state
+    from simbench.scenario import load_scenario, parse_overrides
+
+    sc = load_scenario(scenario, overrides={**parse_overrides(set_), "duration_s": duration})
+    if out is not None:
+        replaceable_state(out)  # refuse a path that is not the bench's before anything renders
+    if every < 1:
+        raise typer.BadParameter(f"--every {every}: must be at least 1")
+
+    def row(s) -> None:
+        if s.frames % every == 0:
+            print(f"  frame {s.frames:>6}/{sc.n_frames}  {s.elapsed_s:>7.1f} s  RSS {s.rss_bytes / 2 ** 20:8.1f} MiB", flush=True)
+
+    print(run_memory_benchmark(sc, out=out, on_sample=row).table(every))

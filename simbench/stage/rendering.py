@@ -2,9 +2,9 @@
 
 ``render_scenario`` streams frames to MP4 (and optionally PNG) while it renders, keeps
 the ground truth of every frame (a few kB each; the images are dropped as they are
-written, so memory does not grow with the take: :func:`render_frames`), and writes everything into a temporary directory
-that replaces ``out`` only when the render has finished: an interrupted render leaves
-nothing half-written (:mod:`simbench.output_dir`: which paths may be replaced).
+written, so memory does not grow with the take: :func:`render_frames`), and writes
+everything into a temporary directory that replaces ``out`` only when the render has
+finished: an interrupted render leaves nothing half-written (:mod:`simbench.output_dir`: which paths may be replaced).
 """
 
 from __future__ import annotations
