@@ -149,6 +149,68 @@ def test_sigkill_leaves_the_earlier_result_and_the_next_run_removes_the_stale_pa
     assert _tree(out) == before
 
 
+
+# The stages after the render are short on a tiny take: this script makes the run write a
+# flag file when it enters the marker pipeline or the exports and then stay in that stage
+# long enough for the test to signal it from outside (the stage then goes on as usual).
+PAUSED = """
+import sys, time
+from pathlib import Path
+from simbench.pipelines import run
+from simbench.cli import main
+
+where, flag = sys.argv.pop(1), sys.argv.pop(1)
+name = {"pipeline": "capture_from_detections", "exports": "export_capture"}[where]
+real = getattr(run, name)
+
+def paused(*a, **k):
+    Path(flag).write_text(where)
+    time.sleep(30.0)
+    return real(*a, **k)
+
+setattr(run, name, paused)
+main()
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+@pytest.mark.parametrize("where", ["pipeline", "exports"])
+def test_a_signal_after_the_render_keeps_the_earlier_result_and_leaves_nothing(tmp_path, finished, where, sig):
+    """SIGTERM or SIGKILL while the marker pipeline runs or the exports are written (the
+    frames are rendered and the ground truth is in the partial folder): the earlier result
+    at ``--out`` is untouched byte for byte, no process of the run is left, and no partial
+    folder is left after the next run (at once for SIGTERM)."""
+    out = _with_earlier_result(tmp_path, finished)
+    before = _tree(out)
+    flag = tmp_path / "in_stage"
+    proc = _start([sys.executable, "-c", PAUSED, where, str(flag), "run", QUICKSTART, "--out", str(out), *TINY])
+    try:
+        _wait_for(flag.is_file, 120, proc)
+        kids = _children(proc)
+        partial = _partials(out.parent)
+        assert len(partial) == 1 and (partial[0] / "videos").is_dir()
+        if where == "exports":
+            assert (partial[0] / "ground_truth" / "ground_truth.npz").is_file()
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    _assert_all_gone(kids)
+    assert _tree(out) == before
+    if sig == signal.SIGTERM:
+        assert proc.returncode == 128 + signal.SIGTERM, err
+        assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("interrupted by SIGTERM"), err
+        assert _partials(out.parent) == []
+    else:
+        assert proc.returncode == -signal.SIGKILL
+        assert len(_partials(out.parent)) == 1  # the stale one, until the next run
+    _tiny_run(out.parent / "other")
+    assert _partials(out.parent) == []
+    assert sorted(p.name for p in out.parent.iterdir()) == ["other", "result"]
+    assert _tree(out) == before
+
 SWEEP = f"""
 name = "stop_me"
 scenario = "{QUICKSTART}"
