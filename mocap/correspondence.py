@@ -18,7 +18,8 @@ How
 3. Each candidate is triangulated from its two views (batched DLT), must lie in front of
    both cameras, and collects *support*: in every other camera, the nearest detection to
    its projection within ``support_px`` (``scipy.spatial.cKDTree``).
-4. Candidates are taken greedily, most views first, then smallest residual. A candidate is
+4. Candidates are taken greedily, most views agreeing within ``rank_residual_px`` first
+   (less their residual in those units), then smallest epipolar distance. A candidate is
    accepted when its two base detections are still free; its free support views join it,
    and the point is triangulated again from all its views with worst-view rejection
    (:func:`mocap.triangulation.triangulate_normalized`). Each detection serves at most one
@@ -63,15 +64,19 @@ class CorrespondenceParams:
         Worst-view rejection threshold of the final triangulation, pixels.
     min_depth_m : float
         A point must lie at least this far in front of each camera that sees it.
+    rank_residual_px : float
+        Candidates are taken in the order of their views that agree within this many pixels,
+        less their mean residual in these units.
     """
 
     epipolar_px: float = 2.5
     support_px: float = 3.0
     max_residual_px: float = 2.5
     min_depth_m: float = 0.2
+    rank_residual_px: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("epipolar_px", "support_px", "max_residual_px", "min_depth_m"):
+        for name in ("epipolar_px", "support_px", "max_residual_px", "min_depth_m", "rank_residual_px"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"CorrespondenceParams.{name}={v!r}: must be a finite number > 0")
@@ -220,8 +225,20 @@ def reconstruct_unlabelled(
         hit = np.isfinite(dd)
         rows = np.flatnonzero(other)[hit]
         views[rows, c] = ii[hit]
-    n_views = (views >= 0).sum(axis=1)
-    order = np.lexsort((dist, -n_views))
+    # Rank each candidate by the views that agree within rank_residual_px (worst-view
+    # rejection), less its residual in units of rank_residual_px. Where markers lie a few
+    # pixels apart, support gathered from a neighbour's detections makes a ghost between two
+    # markers with more views (each a pixel or so off) than either true point (a tenth of a
+    # pixel); counting views alone takes the ghost first and both markers are lost. The
+    # accepted point keeps all its views: its own triangulation rejects at max_residual_px.
+    cand_obs = np.full((C, K, 2), np.nan)
+    for c in range(C):
+        ok = views[:, c] >= 0
+        cand_obs[c, ok] = xs[c][views[ok, c]]
+    tight = triangulate_normalized(cand_obs, calibration, max_residual_px=p.rank_residual_px, refine=False)
+    agreeing = np.where(np.isfinite(tight.residual_px), tight.n_views, 1)
+    score = agreeing - np.nan_to_num(tight.residual_px, nan=0.0) / p.rank_residual_px
+    order = np.lexsort((dist, -score))
     order = order[depth_ok[order]]
 
     used = [np.zeros(len(x), bool) for x in xs]
