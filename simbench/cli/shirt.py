@@ -38,3 +38,20 @@ def build_db_command(
         db = build_database(params, sampling, progress=advance)
     db.save(path)
     console.print(f"wrote {path}: {len(db)} poses in {time.perf_counter() - t0:.0f} s")
+
+
+@shirt_app.command("seed-table")
+@user_errors
+def seed_table_command(
+    databases: list[Path] = typer.Argument(..., help="results databases of seed sweeps (scenarios/sweeps/shirt_seeds_*.toml)"),
+    out: Optional[Path] = typer.Option(None, "--out", help="also write the table (Markdown) to this file"),
+) -> None:
+    """Full method against baseline, seed by seed: joint RMSE (cm), median, share <= 4 cm, share >= 20 % better."""
+    from simbench.sweeps.shirt_table import read_seed_rows, seed_table_markdown, summarise
+
+    rows = read_seed_rows(databases)
+    text = seed_table_markdown(rows, summarise(rows))
+    typer.echo(text, nl=False)
+    if out is not None:
+        out.write_text(text)
+        console.print(f"wrote {out}")
