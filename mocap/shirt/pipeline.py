@@ -65,6 +65,7 @@ import numpy as np
 
 from mocap.calibration import Calibration
 from mocap.errors import MocapInputError
+from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
 from mocap.shirt.background import BackgroundModel, BackgroundParams
 from mocap.shirt.classify import (Classification, assign_patches, best_reference, classify_gaussian,
                                   classify_pose_assisted, crop_image, crop_view, distance_to_patches, foreground_pixels, other_distance,
@@ -91,6 +92,7 @@ STAGES: tuple[str, ...] = ("background", "histogram_search", "classify", "databa
 
 _LEFT_ARM = slice(7 + 3, 7 + 7)  # shoulder_l x y z, elbow_l in q
 _RIGHT_ARM = slice(7 + 7, 7 + 11)
+_ARMS = {"l": _LEFT_ARM, "r": _RIGHT_ARM}
 _CANONICAL_SIZE = 64  # px: orthographic render of the blended pose for the 6-DoF fit
 _CANONICAL_MARGIN = 1.15
 
@@ -170,6 +172,17 @@ class ShirtPipelineParams:
         every database neighbour, the blend and the previous pose; solve again from the
         arms that agree best with step 1 and keep the result when it agrees better by more
         than ``hypothesis_margin`` (a fraction of the classified pixels).
+    lock_on_yaws : int
+        Full method, first frame: the solved pose is also tried upright at this many
+        headings (0: not), each split and solved again, and the one that agrees best with
+        step 1 is kept (:meth:`ShirtTracker._root_hypotheses`).
+    arm_search, arm_search_arms, arm_search_margin, arm_search_top : bool, int, float, int
+        Full method, every frame: each arm of the solved pose and ``arm_search_arms`` arms
+        of the database (and this frame's neighbours) are scored against step 1 by
+        projected sample points (:mod:`mocap.shirt.arm_search`, a few ms); when a candidate
+        scores ``arm_search_margin`` shirt sizes better than the pose's own arm, the
+        ``arm_search_top`` best candidates of that arm are verified and solved as in
+        ``arm_hypotheses`` (also on the first frame and lost frames, with the neighbours).
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
@@ -222,12 +235,18 @@ class ShirtPipelineParams:
     recovery_blend_scale: float = 1.0
     arm_hypotheses: bool = True
     hypothesis_margin: float = 0.01
+    lock_on_yaws: int = 8
+    arm_search: bool = True
+    arm_search_arms: int = 400
+    arm_search_margin: float = 0.03
+    arm_search_top: int = 3
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
     patch_gate: float = 0.2
     global_fit_std: float = 0.03
     baseline_damping_std: float = 3.0
+    baseline_previous_start: bool = True
     keep_classification: bool = False
 
     def __post_init__(self) -> None:
@@ -400,6 +419,10 @@ class ShirtTracker:
                     raise MocapInputError(f"ShirtTracker: empty_frames for {len(empty_frames)} cameras, the rig has {C}")
                 for bg, frames in zip(self.backgrounds, empty_frames):
                     bg.learn_empty(frames)
+        self._arm_search = None
+        if params.pose_prior and params.arm_search:
+            # a fixed generator: the candidate arms are part of the tracker's configuration
+            self._arm_search = ArmSearch(self.model, database.hinges, params.arm_search_arms, 6, np.random.default_rng(18))
         self.q_prev: np.ndarray | None = None
         self._prev_box: list[tuple[np.ndarray, np.ndarray] | None] = [None] * C
         self._first_fraction: list[float | None] = [None] * C
@@ -490,9 +513,10 @@ class ShirtTracker:
         if len(cons):
             res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
                                 silhouettes=sil, rel_tol=p.ik_rel_tol)
-            if p.pose_prior and self.q_prev is not None and est.q_prior is not self.q_prev:
+            if (p.pose_prior or p.baseline_previous_start) and self.q_prev is not None and est.q_prior is not self.q_prev:
                 # also start from the previous pose (a blend far off can hold the solver in a
-                # local minimum); keep the lower energy
+                # local minimum); keep the lower energy.  The baseline does this too: a start
+                # is not a prior term (its energy has none towards the previous pose)
                 alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
                 res = alt if alt.cost < res.cost else res
             for _ in range(p.correspondence_passes - 1):
@@ -516,8 +540,15 @@ class ShirtTracker:
                         break
                     res = self.ik.solve(res.q, cons2, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
             q = res.q
-            if p.pose_prior and p.arm_hypotheses and (self._frames == 0 or lost):
-                q = self._arm_hypotheses(q, est, lin, sil)
+            if p.pose_prior and p.lock_on_yaws and self._frames == 0:
+                q = self._root_hypotheses(q, est, lin, sil)
+            if p.pose_prior and p.arm_hypotheses:
+                ranked = self._ranked_arms(q, est)
+                flagged = {side: arms for side, (arms, worse) in ranked.items() if worse}
+                if self._frames == 0 or lost:
+                    q = self._arm_hypotheses(q, est, lin, sil, {side: arms for side, (arms, _) in ranked.items()}, neighbours=True)
+                elif flagged:
+                    q = self._arm_hypotheses(q, est, lin, sil, flagged, neighbours=False)
         else:
             q = q_b.copy()
         T["ik"] = (time.perf_counter() - t) * 1e3
@@ -531,7 +562,60 @@ class ShirtTracker:
             est.cameras = []
         return est
 
-    def _arm_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict) -> np.ndarray:
+    def _root_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict) -> np.ndarray:
+        """Pose ``q`` and the same pose upright (the world's z up) at ``lock_on_yaws`` headings, each split
+        into patches and solved again with loose priors; the one that agrees best with step 1.
+
+        An addition to seed 001 for locking on: the database here samples the joint ranges
+        uniformly, and for a pose it covers poorly (a T-pose, arms raised) the blend can be
+        turned 80-100 degrees away from the subject (issue 18: shirt_outdoor seed 2 and
+        shirt_tungsten_off seed 11, the first 20 frames); centroid IK does not turn a
+        body that far.  A standing subject is upright, so headings are all that is tried.
+        """
+        p = self.params
+        seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
+        loose = [(est.q_blend, self.priors.blend_std * p.recovery_blend_scale)]
+        starts = [q]
+        for yaw in np.linspace(-np.pi, np.pi, p.lock_on_yaws, endpoint=False):
+            c, s_ = np.cos(yaw), np.sin(yaw)
+            starts.append(self.kin.make_q(np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]), q[:3], q[7:]))
+        solved = []
+        for q0 in starts:
+            res_q = q0
+            for _ in range(p.correspondence_passes):
+                cons = self.reassign(res_q, est.cameras, lin)
+                if not len(cons):
+                    break
+                res_q = self.ik.solve(res_q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
+            solved.append(res_q)
+        scores, _ = self._agreement(solved, est.cameras, seen)
+        return solved[int(np.argmax(scores))]
+
+    def _ranked_arms(self, q: np.ndarray, est: FrameEstimate) -> dict:
+        """Per arm (``"l"``, ``"r"``): the ``arm_search_top`` best candidate arms ``(k, 4)`` by
+        :class:`mocap.shirt.arm_search.ArmSearch`, and whether the best beats ``q``'s own arm by
+        ``arm_search_margin``; empty without the arm search."""
+        p = self.params
+        if self._arm_search is None:
+            return {}
+        shots = []
+        for ci, o in enumerate(est.cameras):
+            if o.step1 is None or o.tiny is None:
+                continue
+            shots.append((self.cameras[ci], o.view, colour_distance_maps(o.step1.colour, self._arm_search.colours), float(o.tiny.side)))
+        if not shots:
+            return {}
+        nbs = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
+        out = {}
+        for side, sl in _ARMS.items():
+            extra = np.concatenate([h[:, sl.start - 7: sl.stop - 7] for h in nbs]) if nbs else None
+            sc = self._arm_search.score(q, side, shots, extra)
+            order = np.argsort(sc.scores, kind="stable")[: p.arm_search_top]
+            out[side] = (sc.arms[order], bool(sc.current - sc.scores[order[0]] > p.arm_search_margin))
+        return out
+
+    def _arm_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, ranked: dict,
+                        neighbours: bool = True) -> np.ndarray:
         """Each arm of pose ``q`` replaced by the arm of every database neighbour, the blend and the previous pose:
         the best-agreeing arms (or ``q`` itself) are solved again with loose priors and replace ``q`` when the
         result agrees better.
@@ -543,14 +627,22 @@ class ShirtTracker:
         """
         p = self.params
         seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
-        cands = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
-        cands += [est.q_blend[None, 7:]] + ([self.q_prev[None, 7:]] if self.q_prev is not None else [])
-        arms = np.unique(np.concatenate(cands), axis=0)
+        cands = []
+        if neighbours:
+            cands = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
+            cands += [est.q_blend[None, 7:]] + ([self.q_prev[None, 7:]] if self.q_prev is not None else [])
+        hinges = np.unique(np.concatenate(cands), axis=0) if cands else np.zeros((0, len(q) - 7))
         score_q = self._agreement([q], est.cameras, seen)[0][0]
         start = None
-        for sl in (_LEFT_ARM, _RIGHT_ARM):
+        for side in (_ARMS if neighbours else ranked):
+            sl = _ARMS[side]
+            arms = hinges[:, sl.start - 7: sl.stop - 7]
+            if side in ranked:
+                arms = np.unique(np.concatenate([arms, ranked[side]]), axis=0)
+            if not len(arms):
+                continue
             trials = np.repeat((q if start is None else start)[None], len(arms), axis=0)
-            trials[:, sl] = arms[:, sl.start - 7: sl.stop - 7]
+            trials[:, sl] = arms
             scores, _ = self._agreement(list(trials), est.cameras, seen)
             i = int(np.argmax(scores))
             if scores[i] > score_q + p.hypothesis_margin:
@@ -727,7 +819,10 @@ class ShirtTracker:
         p = self.params
         lin = [c.linear if c is not None else None for c in crops]
         fgs = [c.foreground if c is not None else None for c in crops]
-        prior_pose, renders = self._prior_pose(q_b, obs, seen, lin, fgs) if p.pose_prior else (q_b, {})
+        # the pose whose id map splits the colours into patches: the blend or the previous pose
+        # (the baseline too, which then uses it for that alone: its classification stays step 1's)
+        use_prev = p.pose_prior or p.baseline_previous_start
+        prior_pose, renders = self._prior_pose(q_b, obs, seen, lin, fgs) if use_prev else (q_b, {})
         parts = []
         fractions = np.zeros(len(obs))
         for ci in seen:

@@ -1,0 +1,152 @@
+"""A cheap check of each arm against the step-1 classification, over many arm configurations.
+
+Centroid IK from a far-off start can settle with an arm pointing the wrong way (at a
+camera, hidden in front of the torso), and a forearm can be lost mid-stroke while the
+patch centroids that remain still fit (issue 18: a left elbow 43 cm off on the first
+frames of shirt_office seed 3; a forearm lost in shirt_tungsten_off seed 2).  Rendering
+every candidate arm and comparing id maps costs ~2 ms per candidate and camera; this
+scores hundreds of candidates per frame in a few milliseconds instead:
+
+* each arm's shirt patches are sampled once as a few points per (patch, body), in the
+  thorax frame, for a fixed set of arm configurations drawn from the pose database;
+* on a frame, the points of every candidate are placed with the current pose's thorax
+  and projected into each camera's crop, and each point is scored by its distance to the
+  nearest step-1 pixel of its colour (a distance transform per colour and camera),
+  truncated at a fraction of the shirt's size (occlusion and misclassified pixels cost at
+  most that);
+* the arm whose mean truncated distance is well below the current arm's is a hypothesis
+  for the pipeline to verify by rendering (:meth:`mocap.shirt.pipeline.ShirtTracker._arm_hypotheses`).
+
+This is an addition to seed 001, whose database of realistic poses makes such lock-on
+failures rarer.  Occlusion is not modelled here (the verification render does that).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mocap.calibration import Camera
+from mocap.shirt.shirt_model import CropView, ShirtModel
+
+__all__ = ["ARM_SIDES", "ArmSearch", "ArmScores", "colour_distance_maps"]
+
+ARM_SIDES: tuple[str, ...] = ("l", "r")
+"""The arms, in the order of the hinges (:data:`mocap.shirt.kinematics.UPPER_HINGES`)."""
+
+_ARM_HINGES = {"l": slice(3, 7), "r": slice(7, 11)}  # shoulder x y z, elbow, in the 11 hinges
+
+
+@dataclass(frozen=True)
+class ArmScores:
+    """Scores of one arm: ``current`` for the pose's own arm and ``(N,)`` for the candidates
+    ``arms (N, 4)`` (shoulder x y z, elbow; radians), in shirt sizes (lower is better)."""
+
+    current: float
+    scores: np.ndarray
+    arms: np.ndarray
+
+
+def colour_distance_maps(colour: np.ndarray, colours: np.ndarray) -> np.ndarray:
+    """``(len(colours), h, w)`` float32: distance (working pixels) from every pixel of a
+    classified map ``colour (h, w)`` (-1 unclassified) to the nearest pixel of each colour
+    in ``colours``; a colour with no pixel is ``h + w`` everywhere."""
+    h, w = colour.shape
+    out = np.empty((len(colours), h, w), np.float32)
+    for i, k in enumerate(colours):
+        m = colour != k
+        if m.all():
+            out[i] = float(h + w)
+        else:
+            out[i] = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 3)
+    return out
+
+
+class ArmSearch:
+    """Arm configurations scored against a classification by projected sample points.
+
+    Parameters
+    ----------
+    model : ShirtModel
+    hinges : (N, 11) float
+        Configurations to draw the fixed candidate arms from (the pose database's).
+    n_arms : int
+        Fixed candidates per arm, drawn without replacement with ``rng``.
+    points_per_part : int
+        Sample points per (patch, body) of an arm.
+    rng : np.random.Generator
+    """
+
+    def __init__(self, model: ShirtModel, hinges: np.ndarray, n_arms: int, points_per_part: int,
+                 rng: np.random.Generator) -> None:
+        self.model = model
+        self.kin = model.kin
+        names = model.geometry.body_names
+        hinges = np.asarray(hinges, float)
+        pick = rng.choice(len(hinges), size=min(n_arms, len(hinges)), replace=False)
+        self.fixed = {s: np.unique(hinges[pick, _ARM_HINGES[s]], axis=0) for s in ARM_SIDES}
+        self._points = {}   # side -> (body index in the arm (0 upper, 1 fore), point in body frame (P, 3), colour (P,))
+        self.colours = np.unique(model.patch_colour)
+        for s in ARM_SIDES:
+            bodies = (names.index(f"upperarm_{s}"), names.index(f"forearm_{s}"))
+            part, pts, col = [], [], []
+            for j, b in enumerate(bodies):
+                for patch in np.unique(model.face_patch[(model.face_body == b) & (model.face_patch >= 0)]):
+                    faces = np.flatnonzero((model.face_body == b) & (model.face_patch == patch))
+                    # evenly spread faces of the part (the mesh lists them in order around and along the limb)
+                    sel = faces[np.linspace(0, len(faces) - 1, min(points_per_part, len(faces))).round().astype(int)]
+                    pts.append(model.face_centre_body[sel])
+                    part += [j] * len(sel)
+                    col += [int(model.patch_colour[patch])] * len(sel)
+            self._points[s] = (np.asarray(part), np.concatenate(pts), np.asarray(col))
+        self._bodies = {s: ("thorax", f"upperarm_{s}", f"forearm_{s}") for s in ARM_SIDES}
+        self._fixed_rel = {s: self._in_thorax(s, self.fixed[s]) for s in ARM_SIDES}
+
+    def _in_thorax(self, side: str, arms: np.ndarray) -> np.ndarray:
+        """``(N, P, 3)``: the arm's sample points in the thorax frame for each arm configuration ``(N, 4)``."""
+        part, pts, _ = self._points[side]
+        q = self.kin.neutral()
+        out = np.empty((len(arms), len(pts), 3))
+        for i, a in enumerate(arms):
+            q[7 + _ARM_HINGES[side].start: 7 + _ARM_HINGES[side].stop] = a
+            R, p = self.kin.placements(q, self._bodies[side])
+            Rt = R[0].T
+            for j in (0, 1):
+                m = part == j
+                out[i, m] = (pts[m] @ R[1 + j].T + p[1 + j] - p[0]) @ Rt.T
+        return out
+
+    def score(self, q: np.ndarray, side: str, shots: list[tuple[Camera, CropView, np.ndarray, float]],
+              extra_arms: np.ndarray | None = None, truncate: float = 0.25) -> ArmScores:
+        """Scores of the arm ``side`` of pose ``q (18,)`` and of every candidate arm on ``q``'s thorax.
+
+        ``shots`` : per camera ``(camera, crop view, distance maps (K, h, w) from
+        :func:`colour_distance_maps` over all colours, shirt size in working pixels)``.
+        ``extra_arms`` : ``(M, 4)`` more candidates (e.g. the database neighbours of this frame).
+        Each point costs its distance in shirt sizes, truncated at ``truncate``; a point
+        outside a crop costs ``truncate``.
+        """
+        sl = _ARM_HINGES[side]
+        own = np.asarray(q, float)[7 + sl.start: 7 + sl.stop][None]
+        arms = [own] + ([np.asarray(extra_arms, float)] if extra_arms is not None and len(extra_arms) else [])
+        rel = np.concatenate([self._in_thorax(side, np.concatenate(arms)), self._fixed_rel[side]])
+        all_arms = np.concatenate(arms + [self.fixed[side]])
+        R, p = self.kin.placements(q, ("thorax",))
+        world = rel @ R[0].T + p[0]                          # (N, P, 3)
+        N, P = world.shape[:2]
+        col_index = np.searchsorted(self.colours, self._points[side][2])
+        total = np.zeros(N)
+        for cam, view, dmaps, size in shots:
+            uv, z = self.model._project(world.reshape(-1, 3), cam, view)
+            h, w = dmaps.shape[1:]
+            x = np.rint(uv[:, 0]).astype(np.int64)
+            y = np.rint(uv[:, 1]).astype(np.int64)
+            inside = (x >= 0) & (x < w) & (y >= 0) & (y < h) & (z > 0)
+            d = np.full(N * P, truncate)
+            ci = np.tile(col_index, N)
+            d[inside] = np.minimum(dmaps[ci[inside], y[inside], x[inside]] / max(size, 1.0), truncate)
+            total += d.reshape(N, P).mean(axis=1)
+        total /= max(len(shots), 1)
+        return ArmScores(float(total[0]), total[1:], all_arms[1:])

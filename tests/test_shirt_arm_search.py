@@ -1,0 +1,66 @@
+"""The arm search of the colour-shirt pipeline: arms scored against a classification by projected sample points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mocap.calib.synthetic import look_at
+from mocap.calibration import Camera
+from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
+from mocap.shirt.shirt_model import CropView
+from simbench.pipelines.shirt_database import shirt_model
+from simbench.scenes.anthropometry import BodyParams
+
+
+@pytest.fixture(scope="module")
+def model():
+    return shirt_model(BodyParams())
+
+
+def _cameras():
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    cams = []
+    for name, y in (("left", 1.0), ("right", -1.0)):
+        R, t = look_at(np.array([2.3, y, 1.5]), np.array([0.0, 0.0, 1.2]))
+        cams.append(Camera(name, (640, 480), K, np.zeros(5), R, t))
+    return cams
+
+
+def test_the_true_arm_scores_best_and_a_wrong_arm_is_told_apart(model):
+    """Classification = the true pose's rendered colours: the true arm costs ~0, a swung arm much more,
+    and among hundreds of database arms the search ranks one near the true arm first."""
+    rng = np.random.default_rng(5)
+    kin = model.kin
+    hinges = kin.lower + (kin.upper - kin.lower) * rng.random((2000, len(kin.lower)))
+    search = ArmSearch(model, hinges, n_arms=300, points_per_part=6, rng=np.random.default_rng(0))
+    q_true = kin.make_q(np.eye(3), np.array([0.0, 0.0, 0.93]), np.zeros(len(kin.lower)))
+    q_true[7 + 3: 7 + 7] = [0.3, -0.4, 0.2, 0.9]            # left arm: shoulder x y z, elbow
+    view = CropView(120.0, 40.0, 400.0 / 144, 144)
+    shots = []
+    for cam in _cameras():
+        colour = model.render_camera(q_true, cam, view).colour
+        assert (colour >= 0).sum() > 1000
+        shots.append((cam, view, colour_distance_maps(colour, search.colours), 60.0))
+    truth = search.score(q_true, "l", shots)
+    assert truth.current < 0.02  # points on hidden faces (behind the torso) cost up to the truncation
+    q_wrong = q_true.copy()
+    q_wrong[7 + 3: 7 + 7] = [-0.6, 0.6, -0.5, 0.1]
+    wrong = search.score(q_wrong, "l", shots, extra_arms=q_true[None, 10:14])
+    assert wrong.current > 0.05
+    # the true arm (given as an extra candidate) is the best candidate, far below the wrong arm
+    best = int(np.argmin(wrong.scores))
+    np.testing.assert_allclose(wrong.arms[best], q_true[10:14])
+    assert wrong.scores[best] < 0.02
+    # without it, the best of the database's arms is still well below the wrong arm
+    alone = search.score(q_wrong, "l", shots)
+    assert alone.scores.min() < 0.5 * wrong.current
+    assert len(alone.scores) == len(search.fixed["l"]) and len(search.fixed["l"]) > 250
+
+
+def test_a_colour_with_no_pixel_is_far_everywhere():
+    colour = -np.ones((20, 30), np.int16)
+    colour[5, 7] = 2
+    d = colour_distance_maps(colour, np.array([1, 2]))
+    assert d.shape == (2, 20, 30) and np.all(d[0] == 50)
+    assert d[1, 5, 7] == 0 and d[1, 5, 10] == pytest.approx(3.0, abs=0.2)  # the 3x3 chamfer metric
