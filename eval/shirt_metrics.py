@@ -6,6 +6,8 @@
   angle between the upper arm (shoulder -> elbow) and the trunk's downward axis
   (neck -> lumbar joint), from joint centres only, so any skeleton parameterisation
   can be compared;
+* :func:`frames_within_cm`: the share of frames where every named joint (e.g. elbows and
+  wrists) is within a distance of the truth (seed 001's Fig. 11: the arms kept or lost);
 * :func:`classification_roc`: correct against incorrect classifications while the
   classifier's threshold varies (the paper's Fig. 6).
 """
@@ -14,7 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rmse_cm", "per_frame_rms_cm", "fill_forward", "shoulder_angle_deg", "classification_roc"]
+__all__ = ["rmse_cm", "per_frame_rms_cm", "frames_within_cm", "fill_forward", "shoulder_angle_deg", "classification_roc"]
+
+ARM_JOINTS: tuple[str, ...] = ("forearm_l", "hand_l", "forearm_r", "hand_r")
+"""Elbows (the forearms' origins) and wrists (the hands' origins)."""
 
 
 def per_frame_rms_cm(est_m: np.ndarray, true_m: np.ndarray) -> np.ndarray:
@@ -22,6 +27,24 @@ def per_frame_rms_cm(est_m: np.ndarray, true_m: np.ndarray) -> np.ndarray:
     d2 = np.sum((np.asarray(est_m, float) - np.asarray(true_m, float)) ** 2, axis=-1)
     with np.errstate(invalid="ignore"):
         return np.sqrt(np.mean(d2, axis=-1)) * 100.0
+
+
+def frames_within_cm(est_m: np.ndarray, true_m: np.ndarray, names: list[str] | tuple[str, ...],
+                     joints: tuple[str, ...] = ARM_JOINTS, threshold_cm: float = 5.0) -> float:
+    """Share of frames where each of ``joints`` is within ``threshold_cm`` of the truth (a NaN frame is not).
+
+    Parameters
+    ----------
+    est_m, true_m : (F, J, 3) float
+        Estimated and true joint centres, metres.
+    names : sequence of str
+        Body names of the J joints.
+    """
+    idx = [list(names).index(j) for j in joints]
+    d_cm = np.linalg.norm(np.asarray(est_m, float)[:, idx] - np.asarray(true_m, float)[:, idx], axis=-1) * 100.0
+    with np.errstate(invalid="ignore"):
+        ok = np.all(d_cm < threshold_cm, axis=1)
+    return float(np.mean(ok)) if len(ok) else float("nan")
 
 
 def rmse_cm(est_m: np.ndarray, true_m: np.ndarray) -> float:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from eval.shirt_metrics import classification_roc, fill_forward, per_frame_rms_cm, rmse_cm, shoulder_angle_deg
+from eval.shirt_metrics import classification_roc, fill_forward, frames_within_cm, per_frame_rms_cm, rmse_cm, shoulder_angle_deg
 
 NAMES = ("abdomen", "thorax", "head", "upperarm_l", "forearm_l", "hand_l", "upperarm_r", "forearm_r", "hand_r")
 
@@ -44,3 +44,15 @@ def test_roc_counts_correct_shirt_pixels_and_all_wrong_classifications():
     cor, inc = classification_roc(score, pred, truth, np.array([0.0, 1.5, 3.5, 10.0]))
     np.testing.assert_allclose(cor, [0.0, 2 / 5, 2 / 5, 3 / 5])  # 5 shirt pixels
     np.testing.assert_allclose(inc, [0.0, 0.0, 2 / 6, 2 / 6])
+
+
+def test_frames_within_counts_frames_whose_elbows_and_wrists_are_all_close():
+    true = np.zeros((4, len(NAMES), 3))
+    est = true.copy()
+    est[1, NAMES.index("hand_r")] = [0.0, 0.049, 0.0]     # 4.9 cm: still within
+    est[2, NAMES.index("forearm_l")] = [0.0, 0.0, 0.051]  # an elbow 5.1 cm off: not
+    est[3, NAMES.index("head")] = [1.0, 0.0, 0.0]         # the head does not count
+    assert frames_within_cm(est, true, NAMES) == pytest.approx(3 / 4)
+    est[0] = np.nan                                       # a lost frame is not within
+    assert frames_within_cm(est, true, NAMES) == pytest.approx(2 / 4)
+    assert frames_within_cm(est, true, NAMES, joints=("head",), threshold_cm=200.0) == pytest.approx(3 / 4)

@@ -188,6 +188,7 @@ def score_runs(runs: dict[str, ShirtRun], model: ShirtModel, gt: GroundTruth) ->
         angles[name] = shirt_metrics.shoulder_angle_deg(est_j, UPPER_BODY_JOINTS)
         errors[name] = shirt_metrics.per_frame_rms_cm(est_j, true_j)
         metrics[prefix + "joint_rmse_cm"] = shirt_metrics.rmse_cm(est_j, true_j)
+        metrics[prefix + "arms_within_5cm_fraction"] = shirt_metrics.frames_within_cm(est_j, true_j, UPPER_BODY_JOINTS)
         metrics[prefix + "vertex_rmse_cm"] = shirt_metrics.rmse_cm(model.shirt_vertices(q), true_v)
         metrics[prefix + "blend_joint_rmse_cm"] = shirt_metrics.rmse_cm(blend_j, true_j)
         metrics[prefix + "classified_fraction"] = float(np.mean(r.classified_fraction))
@@ -218,7 +219,8 @@ def report_lines(metrics: dict[str, float], session: ShirtSession) -> list[str]:
              "| | full method | baseline (no pose prior, fixed white balance) |", "|---|---|---|"]
     for key, label in (("joint_rmse_cm", "upper-body joint RMS (cm)"), ("vertex_rmse_cm", "shirt vertex RMS (cm)"),
                        ("blend_joint_rmse_cm", "database blend alone, joint RMS (cm)"),
-                       ("shoulder_angle_rmse_deg", "shoulder angle RMS (deg)"), ("classified_fraction", "classified fraction of foreground"),
+                       ("shoulder_angle_rmse_deg", "shoulder angle RMS (deg)"),
+                       ("arms_within_5cm_fraction", "frames with both elbows and wrists within 5 cm"), ("classified_fraction", "classified fraction of foreground"),
                        ("tracked_fraction", "frames tracked"), ("ms_per_frame", "ms per frame (all cameras)")):
         b = metrics.get("shirt.baseline_" + key, float("nan"))
         lines.append(f"| {label} | {metrics['shirt.' + key]:.3g} | {b:.3g} |")
