@@ -10,6 +10,10 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 ANIPOSELIB_VERSION=0.8.0
 POSE2SIM_VERSION=0.10.49
+# aniposelib 0.8.0 asks for opencv-contrib-python>=4.7 and pip picks 5.x, where
+# findChessboardCorners returns an empty array (not None) on a frame without the board and
+# aniposelib's cornerSubPix call then fails the whole video: pin the last 4.x.
+ANIPOSELIB_OPENCV=opencv-contrib-python==4.14.0.94
 
 install_venv() {  # name, pip requirements...
   local dir=".venv-$1"; shift
@@ -29,7 +33,7 @@ targets=("$@")
 [ ${#targets[@]} -gt 0 ] || targets=(aniposelib pose2sim)
 for t in "${targets[@]}"; do
   case "$t" in
-    aniposelib) install_venv aniposelib "aniposelib==$ANIPOSELIB_VERSION" ;;
+    aniposelib) install_venv aniposelib "aniposelib==$ANIPOSELIB_VERSION" "$ANIPOSELIB_OPENCV" ;;
     pose2sim) install_venv pose2sim "pose2sim==$POSE2SIM_VERSION" ;;
     *) echo "scripts/setup_adapters.sh: unknown adapter '$t' (known: aniposelib, pose2sim)" >&2; exit 2 ;;
   esac

@@ -38,6 +38,41 @@ def export_inputs(scenario: Path = typer.Argument(..., help="scenario TOML"),
                   f"{seen} labelled 2D detections; manifest {out}/inputs.json", markup=False, highlight=False)
 
 
+def scoreboard(suite: str = typer.Argument(..., help="suite name in the suites file, e.g. scoreboard"),
+               suites_file: Path = typer.Option(Path("scenarios/suites.toml"), "--suites", help="suites file"),
+               out: Path = typer.Option(None, "--out", help="report folder (default out/scoreboard/<suite>)"),
+               systems: list[str] = typer.Option([], "--system", help="only these adapters (default: every installed one)")) -> None:
+    """The project's pipeline and every installed third-party adapter (scripts/setup_adapters.sh) on the same
+    frames of each scenario of SUITE: one table, and a Markdown report with plots."""
+    from simbench.sweeps.scoreboard import run_scoreboard, table_lines, write_report
+    from simbench.errors import SimbenchInputError
+    from simbench.output_dir import AtomicOutputDir, replaceable_state
+    from simbench.pipelines.exchange.adapters import ADAPTERS, installed_adapters
+    from simbench.sweeps.regression import load_suites
+
+    unknown = [s for s in systems if s not in ADAPTERS]
+    if unknown:
+        raise SimbenchInputError(f"--system {unknown[0]!r}: adapters are {', '.join(ADAPTERS)}")
+    n = len(load_suites(suites_file).get(suite).scenarios)
+    out = out if out is not None else Path("out") / "scoreboard" / suite
+    replaceable_state(out)
+    missing = [a for a in ADAPTERS if a not in installed_adapters() and (not systems or a in systems)]
+    for a in missing:
+        console.print(f"note: adapter {a} is not installed (scripts/setup_adapters.sh {a}); its rows are left out",
+                      markup=False, highlight=False)
+    prog, advance = progress_bar(f"scoreboard {suite}", n)
+    with AtomicOutputDir(out, scenario=suite, kind="run") as tmp:
+        with prog:
+            sb = run_scoreboard(suites_file, suite, tmp, systems or None, progress=advance)
+        sb.failures = [f.replace(str(tmp), str(out)) for f in sb.failures]  # name the final folder
+        write_report(sb, tmp)
+    print("\n".join(table_lines(sb)))
+    for f in sb.failures:
+        console.print(f"failed: {f}", markup=False, highlight=False)
+    console.print(f"wrote {out}/scoreboard.md (plots in {out}/plots/) and {out}/scoreboard.json", markup=False, highlight=False)
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``export-inputs`` (and ``scoreboard``) to the ``simbench`` app."""
+    """Add ``export-inputs`` and ``scoreboard`` to the ``simbench`` app."""
     app.command("export-inputs")(user_errors(export_inputs))
+    app.command("scoreboard")(user_errors(scoreboard))

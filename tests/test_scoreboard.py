@@ -1,0 +1,34 @@
+"""simbench scoreboard (issue 14, part 4): one table of every system on the same frames, a report with plots."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from simbench.cli.app import app
+from simbench.pipelines.exchange.adapters import adapter_python
+
+
+def test_scoreboard_tiny_suite(tmp_path):
+    (tmp_path / "suites.toml").write_text(
+        '[suites.tiny]\ndescription = "tiny"\nset = { duration_s = 0.3, "rig.count" = 3, "rig.start_deg" = -60.0, '
+        '"rig.span_deg" = 120.0, "sensor.antialias" = 1, "markers_pipeline.solve_skeleton" = false }\n'
+        f'[[suites.tiny.scenarios]]\nname = "quickstart"\nfile = "{(__import__("pathlib").Path("scenarios/quickstart.toml")).resolve()}"\n')
+    systems = ["pose2sim"] if adapter_python("pose2sim") is not None else []
+    args = ["scoreboard", "tiny", "--suites", str(tmp_path / "suites.toml"), "--out", str(tmp_path / "sb")]
+    args += [a for s in systems for a in ("--system", s)] or ["--system", "aniposelib"] * (adapter_python("aniposelib") is not None)
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    data = json.loads((tmp_path / "sb" / "scoreboard.json").read_text())
+    rows = {(x["system"], x["variant"]): x["metrics"] for x in data["rows"]}
+    project = rows[("project", "mocap pipeline (scenario settings)")]
+    dlt = rows[("project", "triangulate_dlt (labelled 2D)")]
+    assert 0.05 < dlt["markers.rmse_mm"] < 2.0 and project["markers.rmse_mm"] > 0.05 and project["markers.reconstructed_fraction"] > 0.5
+    assert all(v["ms_per_frame"] > 0 for v in rows.values() if "ms_per_frame" in v)
+    if systems:
+        assert rows[("pose2sim", "pose2sim_gaps_nan")]["markers.rmse_mm"] < 2.0
+    md = (tmp_path / "sb" / "scoreboard.md").read_text()
+    assert "| quickstart | project | triangulate_dlt (labelled 2D) |" in md and "plots/errors_quickstart.png" in md
+    assert (tmp_path / "sb" / "plots" / "errors_quickstart.png").stat().st_size > 10_000
+    assert "RMSE mm" in r.output and "triangulate_dlt" in r.output
