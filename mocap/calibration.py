@@ -42,6 +42,28 @@ def _as_matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray:
     return arr.reshape(shape)
 
 
+def _refuse_unusable(path: Path, cam: "Camera", fields: dict[str, str]) -> "Camera":
+    """``cam`` as read from ``path`` if every stage can use it, else a :class:`CalibrationFileError`
+    naming the file's field (``fields`` maps ``K``, ``dist``, ``R``, ``t`` to the file's keys):
+    finite numbers, positive focal lengths and image size, K's last row [0, 0, 1], R a rotation.
+    A NaN or a singular matrix would otherwise fail deep inside triangulation, and a non-rotation
+    would reconstruct nothing without saying why."""
+    for what in ("K", "dist", "R", "t"):
+        arr = getattr(cam, what)
+        if not np.isfinite(arr).all():
+            raise CalibrationFileError(path, fields[what], f"value {arr.ravel().tolist()} is not all finite numbers",
+                                       "write it with finite numbers (recalibrate: `mocap calibrate`)")
+    if not (cam.K[0, 0] > 0 and cam.K[1, 1] > 0) or not np.allclose(cam.K[2], [0.0, 0.0, 1.0]):
+        raise CalibrationFileError(path, fields["K"], f"value {cam.K.ravel().tolist()}",
+                                   "K must be [fx, s, cx, 0, fy, cy, 0, 0, 1] with positive focal lengths fx, fy (pixels)")
+    if not (np.allclose(cam.R @ cam.R.T, np.eye(3), atol=1e-4) and np.linalg.det(cam.R) > 0):
+        raise CalibrationFileError(path, fields["R"], f"value {cam.R.ravel().tolist()} is not a rotation matrix",
+                                   "R must be orthonormal with determinant +1 (world to camera)")
+    if not (cam.size[0] > 0 and cam.size[1] > 0):
+        raise CalibrationFileError(path, fields["size"], f"value {list(cam.size)}", "the image size must be positive pixels")
+    return cam
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """One calibrated camera.
@@ -240,7 +262,9 @@ class Calibration:
                 dist = node("distortion_coefficients").mat()
                 w = int(node("image_width").real())
                 h = int(node("image_height").real())
-                return cls((Camera(path.stem, (w, h), K, dist),))
+                fields = {"K": "camera_matrix", "dist": "distortion_coefficients", "R": "camera_matrix", "t": "camera_matrix",
+                          "size": "image_width"}
+                return cls((_refuse_unusable(path, Camera(path.stem, (w, h), K, dist), fields),))
             n = int(count_node.real())
             if n < 1:
                 raise CalibrationFileError(path, "camera_count", f"value {n}", "must be >= 1")
@@ -255,7 +279,8 @@ class Calibration:
                 for key, arr, shape in ((f"camera_{i}_K", K, 9), (f"camera_{i}_R", R, 9), (f"camera_{i}_t", t, 3)):
                     if arr is None or np.asarray(arr).size != shape:
                         raise CalibrationFileError(path, key, f"value {None if arr is None else np.asarray(arr).shape}", f"needs {shape} numbers")
-                cams.append(Camera(name, (int(size[0]), int(size[1])), K, dist, R, t))
+                fields = {k: f"camera_{i}_{k}" for k in ("K", "dist", "R", "t")} | {"size": f"camera_{i}_image_size"}
+                cams.append(_refuse_unusable(path, Camera(name, (int(size[0]), int(size[1])), K, dist, R, t), fields))
             return cls(tuple(cams))
         finally:
             fs.release()
@@ -285,9 +310,11 @@ class Calibration:
         if not path.is_file():
             raise CalibrationFileError(path, "", "file not found", "pass the path of a calibration .toml")
         try:
-            doc = tomllib.loads(path.read_text())
+            doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+        except UnicodeDecodeError as exc:
+            raise CalibrationFileError(path, "", f"byte {exc.start} is not UTF-8", "save the file as UTF-8 text") from None
         except tomllib.TOMLDecodeError as exc:
-            raise CalibrationFileError(path, "", f"invalid TOML: {exc}", "fix the syntax at the position given") from exc
+            raise CalibrationFileError(path, "", f"invalid TOML: {exc}", "fix the syntax at the position given") from None
         cams = []
         for key in sorted(k for k in doc if k.startswith("cam_")):
             tab = doc[key]
@@ -299,9 +326,12 @@ class Calibration:
                                            "pinhole + k1 k2 p1 p2 k3 model every stage assumes; recalibrate with fisheye = false")
             try:
                 R = cv2.Rodrigues(np.asarray(tab["rotation"], dtype=np.float64).reshape(3, 1))[0]
-                cams.append(Camera(str(tab.get("name", key)), tuple(tab["size"]), tab["matrix"], tab["distortions"], R, tab["translation"]))
-            except (ValueError, cv2.error) as exc:
-                raise CalibrationFileError(path, key, str(exc), "check the array sizes (matrix 3x3, rotation 3, translation 3)") from exc
+                cam = Camera(str(tab.get("name", key)), tuple(tab["size"]), tab["matrix"], tab["distortions"], R, tab["translation"])
+            except (ValueError, TypeError, cv2.error) as exc:
+                raise CalibrationFileError(path, key, str(exc), "check the array sizes (matrix 3x3, rotation 3, translation 3)") from None
+            fields = {"K": f"{key}.matrix", "dist": f"{key}.distortions", "R": f"{key}.rotation", "t": f"{key}.translation",
+                      "size": f"{key}.size"}
+            cams.append(_refuse_unusable(path, cam, fields))
         if not cams:
             raise CalibrationFileError(path, "cam_0", "missing", "the file has no [cam_N] tables")
         return cls(tuple(cams))

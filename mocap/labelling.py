@@ -27,6 +27,7 @@ Everything is in undistorted pixels, so the pinhole projection of the search is 
 from __future__ import annotations
 
 import csv
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,28 +101,32 @@ def load_template(path: str | os.PathLike) -> LabelTemplate:
     names: list[str] = []
     rows: list[list[float]] = []
     first_line: dict[str, int] = {}
-    with path.open(newline="") as fh:
-        for lineno, row in enumerate(csv.reader(fh), start=1):
-            if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
-                continue
-            cells = [c.strip() for c in row]
-            if not names and not rows and [c.lower() for c in cells] == ["name", "x", "y", "z"]:
-                continue  # header
-            if len(cells) != 4:
-                raise InputFileError(path, f"{len(cells)} columns {cells}", "each row must be name,x,y,z (metres)", field=f"line {lineno}")
-            try:
-                xyz = [float(c) for c in cells[1:]]
-            except ValueError:
-                raise InputFileError(path, f"coordinates {cells[1:]} are not all numbers", "write x,y,z in metres as decimal numbers", field=f"line {lineno}") from None
-            if not np.isfinite(xyz).all():
-                raise InputFileError(path, f"coordinates {cells[1:]} are not finite", "write x,y,z in metres as finite numbers", field=f"line {lineno}")
-            if not cells[0]:
-                raise InputFileError(path, "empty marker name", "give every row a marker name", field=f"line {lineno}")
-            if cells[0] in first_line:
-                raise InputFileError(path, f"marker {cells[0]!r} already defined on line {first_line[cells[0]]}", "give each marker one row", field=f"line {lineno}")
-            first_line[cells[0]] = lineno
-            names.append(cells[0])
-            rows.append(xyz)
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = exc.object[:exc.start].count(b"\n") + 1
+        raise InputFileError(path, f"byte {exc.start} is not UTF-8", "save the template as UTF-8 text", field=f"line {line}") from None
+    for lineno, row in enumerate(csv.reader(io.StringIO(text, newline="")), start=1):
+        if not row or all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue
+        cells = [c.strip() for c in row]
+        if not names and not rows and [c.lower() for c in cells] == ["name", "x", "y", "z"]:
+            continue  # header
+        if len(cells) != 4:
+            raise InputFileError(path, f"{len(cells)} columns {cells}", "each row must be name,x,y,z (metres)", field=f"line {lineno}")
+        try:
+            xyz = [float(c) for c in cells[1:]]
+        except ValueError:
+            raise InputFileError(path, f"coordinates {cells[1:]} are not all numbers", "write x,y,z in metres as decimal numbers", field=f"line {lineno}") from None
+        if not np.isfinite(xyz).all():
+            raise InputFileError(path, f"coordinates {cells[1:]} are not finite", "write x,y,z in metres as finite numbers", field=f"line {lineno}")
+        if not cells[0]:
+            raise InputFileError(path, "empty marker name", "give every row a marker name", field=f"line {lineno}")
+        if cells[0] in first_line:
+            raise InputFileError(path, f"marker {cells[0]!r} already defined on line {first_line[cells[0]]}", "give each marker one row", field=f"line {lineno}")
+        first_line[cells[0]] = lineno
+        names.append(cells[0])
+        rows.append(xyz)
     if not names:
         raise InputFileError(path, "no marker rows", "add one row name,x,y,z (metres) per marker")
     return LabelTemplate(tuple(names), np.array(rows))

@@ -19,13 +19,17 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
+import re
 import tomllib
 from pathlib import Path
 from types import MappingProxyType
 from typing import Annotated, Literal, Mapping, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_serializer, model_validator
+from pydantic import (AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, StringConstraints,
+                      ValidationError, ValidationInfo, field_validator, model_serializer, model_validator)
+from pydantic_core import PydanticCustomError
 
 from mocap.calib.boards import ARUCO_DICTIONARIES
 from mocap.calibration_formats import load_calibration
@@ -36,7 +40,53 @@ from simbench.scenes.anthropometry import BODY_NAMES, BodyParams
 from simbench.scenes.markers import MARKER_SETS
 from simbench.scenes.motions import MOTIONS
 
-Vec3 = tuple[float, float, float]
+
+def _a_number(v: object) -> object:
+    """Before pydantic's own float/int parsing: only numbers (pydantic would take ``true`` as 1
+    and ``"3"`` as 3) and only finite ones (NaN and inf would pass a missing bound, and NaN
+    passes every comparison)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise PydanticCustomError("not_a_number", "expected a number, got {kind}", {"kind": type(v).__name__})
+    if not math.isfinite(v):
+        raise PydanticCustomError("not_finite", "expected a finite number (NaN and inf are refused)")
+    return v
+
+
+#: Every number of the file schemas is one of these two: finite, not a boolean or a string, and
+#: bounded (a field's own ``Field(ge=..., le=...)`` narrows the default bound of +-1e6).
+Real = Annotated[float, BeforeValidator(_a_number), Field(ge=-1e6, le=1e6)]
+Int = Annotated[int, BeforeValidator(_a_number), Field(ge=-1_000_000, le=1_000_000)]
+#: A coordinate or a vector component in metres (or m/s): within 1 km of the origin.
+Coord = Annotated[float, BeforeValidator(_a_number), Field(ge=-1000.0, le=1000.0)]
+Vec3 = tuple[Coord, Coord, Coord]
+#: A linear albedo, 0..1 per channel.
+Unit = Annotated[float, BeforeValidator(_a_number), Field(ge=0.0, le=1.0)]
+RGB = tuple[Unit, Unit, Unit]
+#: A positive length in metres, up to 20 m (sizes of props, half extents of volumes).
+Length = Annotated[float, BeforeValidator(_a_number), Field(gt=0.0, le=20.0)]
+#: A lens distortion coefficient (OpenCV's k1, k2, p1, p2, k3).
+Coef = Annotated[float, BeforeValidator(_a_number), Field(ge=-100.0, le=100.0)]
+Distortion = tuple[Coef, Coef, Coef, Coef, Coef]
+_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,63}")
+
+
+def _plain_name(v: str) -> str:
+    if not _NAME.fullmatch(v):
+        raise PydanticCustomError("name", "expected a plain name: letters, digits, '_', '.', '+', '-' (1 to 64 of them, "
+                                          "not starting with '.', '+' or '-'), e.g. 'cam_left'")
+    return v
+
+
+#: A name that becomes part of a file name or is matched by other fields (cameras, lights, props).
+Name = Annotated[str, AfterValidator(_plain_name)]
+#: A file the scenario reads (relative to the scenario file, or absolute).
+FilePath = Annotated[str, StringConstraints(min_length=1, strip_whitespace=True)]
+
+
+def field_error(field: str, value: object, allowed: str) -> PydanticCustomError:
+    """A model validator's error about one of its fields: :func:`validation_error_to_scenario_error`
+    names ``field`` (under the model's own path) and ``value`` instead of the whole table."""
+    return PydanticCustomError("scenario_field", "{allowed}", {"allowed": allowed, "field": field, "value": value})
 
 
 class FrozenModel(BaseModel):
@@ -47,8 +97,8 @@ class FrozenModel(BaseModel):
 
 
 class BodyConfig(FrozenModel):
-    height_m: float = Field(1.75, ge=1.2, le=2.2, description="standing height")
-    proportions: dict[str, float] = Field(default_factory=dict, description="overrides of anthropometric fractions of height")
+    height_m: Real = Field(1.75, ge=1.2, le=2.2, description="standing height")
+    proportions: dict[str, Real] = Field(default_factory=dict, description="overrides of anthropometric fractions of height")
 
     @model_validator(mode="after")
     def _proportions_are_body_parameters(self):
@@ -70,9 +120,9 @@ MarkerSetName = Literal[tuple([*MARKER_SETS, "none"])]
 
 class SubjectConfig(FrozenModel):
     markers: MarkerSetName = "plugin_gait_full"
-    shirt: bool = False
-    suit_rgb: Vec3 = Field((0.04, 0.04, 0.05), description="linear albedo of the suit/clothes")
-    skin_rgb: Vec3 = (0.55, 0.38, 0.30)
+    shirt: StrictBool = False
+    suit_rgb: RGB = Field((0.04, 0.04, 0.05), description="linear albedo of the suit/clothes")
+    skin_rgb: RGB = (0.55, 0.38, 0.30)
 
 
 class CaptureGapsConfig(FrozenModel):
@@ -80,10 +130,10 @@ class CaptureGapsConfig(FrozenModel):
     ``fraction`` of the markers each lose ``runs`` runs of ``min_frames``..``max_frames``
     rendered frames (a marker in a gap is not rendered and is absent from the ground truth)."""
 
-    fraction: float = Field(0.2, gt=0.0, le=1.0, description="fraction of the markers that get gaps")
-    min_frames: int = Field(2, ge=1, description="shortest gap, in frames at the scenario's fps")
-    max_frames: int = Field(70, ge=1, description="longest gap, in frames at the scenario's fps")
-    runs: int = Field(1, ge=1, le=50, description="gaps per chosen marker (they never touch)")
+    fraction: Real = Field(0.2, gt=0.0, le=1.0, description="fraction of the markers that get gaps")
+    min_frames: Int = Field(2, ge=1, le=100_000, description="shortest gap, in frames at the scenario's fps")
+    max_frames: Int = Field(70, ge=1, le=100_000, description="longest gap, in frames at the scenario's fps")
+    runs: Int = Field(1, ge=1, le=50, description="gaps per chosen marker (they never touch)")
 
     @model_validator(mode="after")
     def _lengths(self):
@@ -98,12 +148,12 @@ _BVH_FIELDS = {"end": "error", "name_map": {}}  # omitted from the dump at their
 
 class MotionConfig(FrozenModel):
     clip: str = Field("wave_slow", description="procedural clip name, or 'bvh' to load `bvh`")
-    bvh: str | None = Field(None, description="BVH file (relative to the scenario file)")
-    start_s: float = Field(0.0, ge=0.0, description="offset into the clip (or the capture)")
-    speed: float = Field(1.0, gt=0.0, le=10.0)
-    c3d: str | None = Field(None, description="real capture (relative to the scenario file): its physical markers are "
+    bvh: FilePath | None = Field(None, description="BVH file (relative to the scenario file)")
+    start_s: Real = Field(0.0, ge=0.0, le=36_000.0, description="offset into the clip (or the capture)")
+    speed: Real = Field(1.0, gt=0.0, le=10.0)
+    c3d: FilePath | None = Field(None, description="real capture (relative to the scenario file): its physical markers are "
                                               "rendered as marker spheres and are the ground truth; no humanoid")
-    trc: str | None = Field(None, description="as c3d, from a TRC file")
+    trc: FilePath | None = Field(None, description="as c3d, from a TRC file")
     labels: tuple[str, ...] | None = Field(None, description="c3d/trc: the markers to render (default: every physical marker)")
     up_axis: Literal["auto", "x", "y", "z"] = Field("auto", description="c3d/trc: the file's up axis (auto: from the file)")
     gaps: CaptureGapsConfig | None = Field(None, description="c3d/trc: seeded artificial gaps")
@@ -176,35 +226,35 @@ class SensorConfig(FrozenModel):
     """The webcam's sensor and image processing (shared by all cameras)."""
 
     mode: Literal["visible", "ir"] = "visible"
-    exposure_ms: float = Field(8.0, gt=0.0, le=200.0, description="shutter open time; must fit in 1/fps")
-    gain: float = Field(1.0, gt=0.0, le=64.0)
-    full_well_e: float = Field(8000.0, gt=100.0)
-    read_noise_e: float = Field(3.0, ge=0.0)
-    shot_noise: bool = True
+    exposure_ms: Real = Field(8.0, gt=0.0, le=200.0, description="shutter open time; must fit in 1/fps")
+    gain: Real = Field(1.0, gt=0.0, le=64.0)
+    full_well_e: Real = Field(8000.0, gt=100.0, le=1e7)
+    read_noise_e: Real = Field(3.0, ge=0.0, le=1000.0)
+    shot_noise: StrictBool = True
     white_balance: Literal["fixed", "auto"] = "fixed"
-    wb_cct_k: float = Field(5000.0, ge=1667.0, le=25000.0, description="illuminant the fixed white balance is set for")
-    wb_adapt_s: float = Field(1.0, gt=0.0, description="time constant of auto white balance")
+    wb_cct_k: Real = Field(5000.0, ge=1667.0, le=25000.0, description="illuminant the fixed white balance is set for")
+    wb_adapt_s: Real = Field(1.0, gt=0.0, le=600.0, description="time constant of auto white balance")
     gamma: Literal["srgb", "linear"] = "srgb"
-    jpeg_quality: int = Field(0, ge=0, le=100, description="0 = no JPEG compression")
-    motion_blur: bool = True
-    blur_step_px: float = Field(0.75, gt=0.0, description="max image motion between shutter sub-frames")
-    max_subframes: int = Field(24, ge=1, le=128)
-    antialias: int = Field(2, ge=1, le=4, description="supersampling factor per axis")
-    psf_sigma_px: float = Field(0.4, ge=0.0, le=5.0, description="Gaussian optics blur")
-    ring_light: float = Field(6.0, ge=0.0, description="IR ring light strength")
-    electrons_per_unit: float = Field(4.0e5, gt=0.0, description="sensor sensitivity: e- per radiance unit per second")
+    jpeg_quality: Int = Field(0, ge=0, le=100, description="0 = no JPEG compression")
+    motion_blur: StrictBool = True
+    blur_step_px: Real = Field(0.75, gt=0.0, le=100.0, description="max image motion between shutter sub-frames")
+    max_subframes: Int = Field(24, ge=1, le=128)
+    antialias: Int = Field(2, ge=1, le=4, description="supersampling factor per axis")
+    psf_sigma_px: Real = Field(0.4, ge=0.0, le=5.0, description="Gaussian optics blur")
+    ring_light: Real = Field(6.0, ge=0.0, le=1000.0, description="IR ring light strength")
+    electrons_per_unit: Real = Field(4.0e5, gt=0.0, le=1e10, description="sensor sensitivity: e- per radiance unit per second")
 
 
 class CameraConfig(FrozenModel):
-    name: str
+    name: Name
     position: Vec3
     look_at: Vec3 = (0.0, 0.0, 1.0)
     up: Vec3 = (0.0, 0.0, 1.0)
-    width: int = Field(640, ge=16, le=4096)
-    height: int = Field(480, ge=16, le=4096)
-    hfov_deg: float | None = Field(None, gt=5.0, lt=170.0)
-    K: tuple[Vec3, Vec3, Vec3] | None = None
-    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    width: Int = Field(640, ge=16, le=4096)
+    height: Int = Field(480, ge=16, le=4096)
+    hfov_deg: Real | None = Field(None, gt=5.0, lt=170.0)
+    K: tuple[tuple[Real, Real, Real], tuple[Real, Real, Real], tuple[Real, Real, Real]] | None = None
+    distortion: Distortion = (0.0, 0.0, 0.0, 0.0, 0.0)
 
     @model_validator(mode="after")
     def _one_intrinsics(self):
@@ -213,23 +263,51 @@ class CameraConfig(FrozenModel):
         if self.hfov_deg is not None and self.K is not None:
             raise ValueError("give either hfov_deg or K, not both")
         if np.linalg.norm(np.subtract(self.look_at, self.position)) < 1e-6:
-            raise ValueError("look_at must differ from position")
+            raise field_error("look_at", self.look_at, "look_at must differ from position")
+        if np.linalg.norm(self.up) < 1e-6:
+            raise field_error("up", self.up, "the up vector must not be zero (e.g. [0, 0, 1])")
+        if self.K is not None:
+            K = np.asarray(self.K)
+            if not (K[0, 0] > 0 and K[1, 1] > 0):
+                raise field_error("K", self.K, "the focal lengths K[0][0] and K[1][1] must be positive (pixels)")
+            if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+                raise field_error("K", self.K, "K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+            if not (0 <= K[0, 2] <= self.width and 0 <= K[1, 2] <= self.height):
+                raise field_error("K", self.K, f"the principal point (cx, cy) = ({K[0, 2]}, {K[1, 2]}) must lie in the "
+                                               f"{self.width}x{self.height} image")
         return self
+
+    def half_fov_deg(self) -> float:
+        """Half the narrower of the horizontal and vertical fields of view (principal point at the centre)."""
+        fx, fy = (self.K[0][0], self.K[1][1]) if self.K is not None else (0.5 * self.width / math.tan(math.radians(self.hfov_deg) / 2),) * 2
+        return math.degrees(min(math.atan(0.5 * self.width / fx), math.atan(0.5 * self.height / fy)))
 
 
 class RigConfig(FrozenModel):
     """Generates ``count`` cameras on a circle around ``look_at``."""
 
-    count: int = Field(4, ge=1, le=32)
-    radius_m: float = Field(3.5, gt=0.3)
-    height_m: float = Field(2.0)
+    count: Int = Field(4, ge=1, le=32, description="cameras (`simbench run`'s marker pipeline triangulates: two at least)")
+    radius_m: Real = Field(3.5, gt=0.3, le=100.0)
+    height_m: Real = Field(2.0, ge=0.0, le=50.0)
     look_at: Vec3 = (0.0, 0.0, 1.0)
-    start_deg: float = Field(30.0, description="azimuth of the first camera (0 = in front, +X)")
-    span_deg: float = Field(360.0, gt=0.0, le=360.0)
-    hfov_deg: float = Field(60.0, gt=5.0, lt=170.0)
-    width: int = 640
-    height: int = 480
-    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    start_deg: Real = Field(30.0, ge=-720.0, le=720.0, description="azimuth of the first camera (0 = in front, +X)")
+    span_deg: Real = Field(360.0, gt=0.0, le=360.0)
+    hfov_deg: Real = Field(60.0, gt=5.0, lt=170.0)
+    width: Int = Field(640, ge=16, le=4096)
+    height: Int = Field(480, ge=16, le=4096)
+    distortion: Distortion = (0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def camera_configs(self) -> tuple[CameraConfig, ...]:
+        """``count`` cameras ``cam0``, ``cam1``, ... evenly spread over ``span_deg`` of azimuth around ``look_at``."""
+        step = self.span_deg / self.count if self.span_deg >= 360.0 else self.span_deg / max(self.count - 1, 1)
+        cams = []
+        for i in range(self.count):
+            az = np.deg2rad(self.start_deg + i * step)
+            pos = np.array(self.look_at) + np.array([self.radius_m * np.cos(az), self.radius_m * np.sin(az), 0.0])
+            pos[2] = self.height_m
+            cams.append(CameraConfig(name=f"cam{i}", position=tuple(pos), look_at=self.look_at, width=self.width, height=self.height,
+                                     hfov_deg=self.hfov_deg, distortion=self.distortion))
+        return tuple(cams)
     from_calibration: str | None = Field(
         None, description="the whole rig from a calibration file (OpenCV .yml, anipose calibration.toml, Pose2Sim "
         "Calib.toml or an EasyMocap folder; relative to the scenario): its cameras replace the circle above")
@@ -244,13 +322,13 @@ class RigConfig(FrozenModel):
 
 
 class LightConfig(FrozenModel):
-    name: str
+    name: Name
     kind: Literal["point", "directional"] = "point"
     position: Vec3 | None = None
     direction: Vec3 | None = None
-    cct_k: float = Field(4000.0, ge=1667.0, le=25000.0)
-    tint: float = Field(0.0, ge=-5.0, le=5.0)
-    intensity: float = Field(1.0, ge=0.0)
+    cct_k: Real = Field(4000.0, ge=1667.0, le=25000.0)
+    tint: Real = Field(0.0, ge=-5.0, le=5.0)
+    intensity: Real = Field(1.0, ge=0.0, le=10_000.0)
 
     @model_validator(mode="after")
     def _geometry(self):
@@ -258,13 +336,15 @@ class LightConfig(FrozenModel):
             raise ValueError("a point light needs `position`")
         if self.kind == "directional" and self.direction is None:
             raise ValueError("a directional light needs `direction`")
+        if self.direction is not None and np.linalg.norm(self.direction) < 1e-6:
+            raise field_error("direction", self.direction, "a light's direction must not be zero")
         return self
 
 
 class LightEventConfig(FrozenModel):
-    t_s: float = Field(ge=0.0)
+    t_s: Real = Field(ge=0.0, le=36_000.0)
     light: str
-    intensity: float = Field(ge=0.0, description="new intensity (0 = switched off)")
+    intensity: Real = Field(ge=0.0, le=10_000.0, description="new intensity (0 = switched off)")
 
 
 _CEILING = tuple(LightConfig(name=f"ceiling_{i}", kind="point", position=(x, y, 2.9), cct_k=4100.0, tint=1.5, intensity=5.0)
@@ -285,7 +365,7 @@ LIGHTING_PRESETS: Mapping[str, tuple[LightConfig, ...]] = MappingProxyType({
 
 class LightingConfig(FrozenModel):
     preset: Literal[tuple(LIGHTING_PRESETS)] = "office_fluorescent"
-    scale: float = Field(1.0, gt=0.0, description="multiplies every light (brighter/dimmer scene)")
+    scale: Real = Field(1.0, gt=0.0, le=1000.0, description="multiplies every light (brighter/dimmer scene)")
     lights: tuple[LightConfig, ...] = ()
     events: tuple[LightEventConfig, ...] = ()
 
@@ -308,39 +388,39 @@ class LightingConfig(FrozenModel):
 
 
 class SetConfig(FrozenModel):
-    floor: bool = True
-    walls: bool = True
-    room_size_m: float = Field(8.0, gt=2.0)
-    floor_rgb: Vec3 = (0.35, 0.33, 0.30)
-    wall_rgb: Vec3 = (0.55, 0.55, 0.52)
-    clutter: int = Field(0, ge=0, le=50, description="number of coloured boxes around the room")
+    floor: StrictBool = True
+    walls: StrictBool = True
+    room_size_m: Real = Field(8.0, gt=2.0, le=200.0)
+    floor_rgb: RGB = (0.35, 0.33, 0.30)
+    wall_rgb: RGB = (0.55, 0.55, 0.52)
+    clutter: Int = Field(0, ge=0, le=50, description="number of coloured boxes around the room")
 
 
 class BallConfig(FrozenModel):
     kind: Literal["ball"] = "ball"
-    name: str = "ball"
-    radius_m: float = Field(0.11, gt=0.0)
+    name: Name = "ball"
+    radius_m: Real = Field(0.11, gt=0.0, le=0.5, description="up to a 1 m ball")
     position: Vec3 = (2.0, -0.3, 1.5)
     velocity: Vec3 = (-4.0, 0.3, 1.5)
-    rgb: Vec3 = (0.8, 0.35, 0.05)
+    rgb: RGB = (0.8, 0.35, 0.05)
 
 
 class BarrierConfig(FrozenModel):
     kind: Literal["barrier"] = "barrier"
-    name: str = "barrier"
-    size_m: Vec3 = Field((0.05, 1.0, 1.2), description="thickness (x), width (y), height (z)")
+    name: Name = "barrier"
+    size_m: tuple[Length, Length, Length] = Field((0.05, 1.0, 1.2), description="thickness (x), width (y), height (z)")
     position: Vec3 = (1.2, 0.0, 0.6)
-    yaw_deg: float = 0.0
-    rgb: Vec3 = (0.25, 0.3, 0.5)
+    yaw_deg: Real = Field(0.0, ge=-360.0, le=360.0)
+    rgb: RGB = (0.25, 0.3, 0.5)
 
 
 class MovingConfig(FrozenModel):
     kind: Literal["moving"] = "moving"
-    name: str = "mover"
-    size_m: Vec3 = (0.3, 0.3, 0.3)
+    name: Name = "mover"
+    size_m: tuple[Length, Length, Length] = (0.3, 0.3, 0.3)
     start: Vec3 = (1.0, -2.0, 1.0)
     velocity: Vec3 = (0.0, 1.5, 0.0)
-    rgb: Vec3 = (0.2, 0.6, 0.2)
+    rgb: RGB = (0.2, 0.6, 0.2)
 
 
 PropConfig = Annotated[Union[BallConfig, BarrierConfig, MovingConfig], Field(discriminator="kind")]
@@ -353,8 +433,8 @@ class MarkerPipelineConfig(FrozenModel):
     tracker: str = Field("kalman", description="a registered 2D tracker (`simbench list`) or 'package.module:Class'")
     calibration: Literal["ground_truth", "estimated"] = "ground_truth"
     smoothing: Literal["none", "butterworth", "rts"] = "none"
-    max_gap_frames: int = Field(10, ge=0)
-    solve_skeleton: bool = True
+    max_gap_frames: Int = Field(10, ge=0, le=100_000)
+    solve_skeleton: StrictBool = True
 
     @field_validator("tracker")
     @classmethod
@@ -367,10 +447,10 @@ class MarkerPipelineConfig(FrozenModel):
 
 
 class ShirtPipelineConfig(FrozenModel):
-    database: str | None = Field(None, description="pose database file (built by `simbench shirt build-db`)")
-    database_size: int = Field(4000, ge=100)
-    baseline: bool = True
-    training_frames: int = Field(60, ge=2, description="frames of other takes the colour model and IK covariances are trained on")
+    database: FilePath | None = Field(None, description="pose database file (built by `simbench shirt build-db`)")
+    database_size: Int = Field(4000, ge=100, le=1_000_000)
+    baseline: StrictBool = True
+    training_frames: Int = Field(60, ge=2, le=100_000, description="frames of other takes the colour model and IK covariances are trained on")
 
 
 class PipelineConfig(FrozenModel):
@@ -416,27 +496,27 @@ class CalibrationSceneConfig(FrozenModel):
     """
 
     board: Literal["checkerboard", "charuco"] = "checkerboard"
-    board_cols: int = Field(9, ge=3, description="checkerboard: inner corners per row; ChArUco: squares per row")
-    board_rows: int = Field(6, ge=3, description="checkerboard: inner corners per column; ChArUco: squares per column")
-    square_m: float = Field(0.06, gt=0.0, le=0.5)
-    marker_m: float | None = Field(None, gt=0.0, description="ChArUco marker side (default 0.75 x square_m)")
+    board_cols: Int = Field(9, ge=3, le=50, description="checkerboard: inner corners per row; ChArUco: squares per row")
+    board_rows: Int = Field(6, ge=3, le=50, description="checkerboard: inner corners per column; ChArUco: squares per column")
+    square_m: Real = Field(0.06, gt=0.0, le=0.5)
+    marker_m: Real | None = Field(None, gt=0.0, le=0.5, description="ChArUco marker side (default 0.75 x square_m)")
     dictionary: str = Field("DICT_4X4_50", description="ChArUco: OpenCV predefined ArUco dictionary")
-    board_thickness_m: float = Field(0.005, gt=0.0, le=0.05,
+    board_thickness_m: Real = Field(0.005, gt=0.0, le=0.05,
                                      description="the floor board's printed face lies this far above the floor")
-    n_views: int = Field(40, ge=3, description="board poses in the air")
-    tilt_deg: tuple[float, float] = Field((15.0, 45.0), description="tilt range away from facing the camera pair")
-    max_view_angle_deg: float = Field(60.0, gt=10.0, lt=85.0,
+    n_views: Int = Field(40, ge=3, le=500, description="board poses in the air")
+    tilt_deg: tuple[Real, Real] = Field((15.0, 45.0), description="tilt range away from facing the camera pair")
+    max_view_angle_deg: Real = Field(60.0, gt=10.0, lt=85.0,
                                       description="largest angle between the board normal and a camera's line of sight")
-    floor_view: bool = Field(True, description="one view of the board lying on the floor at the world origin")
-    board_exposure_ms: float | None = Field(None, gt=0.0, le=200.0,
+    floor_view: StrictBool = Field(True, description="one view of the board lying on the floor at the world origin")
+    board_exposure_ms: Real | None = Field(None, gt=0.0, le=200.0,
                                             description="shutter of the board pictures (default: sensor.exposure_ms)")
-    wand: bool = True
-    wand_frames: int = Field(120, ge=0)
-    wand_d01_m: float = Field(0.2, gt=0.0, le=2.0, description="wand: marker 0 to the middle marker")
-    wand_d12_m: float = Field(0.3, gt=0.0, le=2.0, description="wand: middle marker to marker 2")
-    wand_marker_radius_m: float = Field(0.0125, gt=0.001, le=0.05)
+    wand: StrictBool = True
+    wand_frames: Int = Field(120, ge=0, le=100_000)
+    wand_d01_m: Real = Field(0.2, gt=0.0, le=2.0, description="wand: marker 0 to the middle marker")
+    wand_d12_m: Real = Field(0.3, gt=0.0, le=2.0, description="wand: middle marker to marker 2")
+    wand_marker_radius_m: Real = Field(0.0125, gt=0.001, le=0.05)
     volume_center: Vec3 = Field((0.0, 0.0, 1.0), description="centre of the volume the board and wand move through")
-    volume_half_m: Vec3 = Field((0.8, 0.8, 0.6), description="half extents of that volume")
+    volume_half_m: tuple[Length, Length, Length] = Field((0.8, 0.8, 0.6), description="half extents of that volume")
 
     @field_validator("dictionary")
     @classmethod
@@ -467,9 +547,9 @@ class CalibrationSceneConfig(FrozenModel):
 class Scenario(FrozenModel):
     name: str
     description: str = ""
-    seed: int = Field(0, ge=0)
-    duration_s: float = Field(2.0, gt=0.0, le=120.0)
-    fps: float = Field(30.0, gt=0.0, le=1000.0)
+    seed: Int = Field(0, ge=0, le=2**32 - 1)
+    duration_s: Real = Field(2.0, gt=0.0, le=120.0)
+    fps: Real = Field(30.0, gt=0.0, le=1000.0)
     body: BodyConfig = BodyConfig()
     subject: SubjectConfig = SubjectConfig()
     motion: MotionConfig = MotionConfig()
@@ -492,6 +572,10 @@ class Scenario(FrozenModel):
         names = [c.name for c in self.cameras]
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must be unique, got {names}")
+        if self.n_frames < 2:
+            raise field_error("duration_s", self.duration_s, f"duration_s * fps = {self.duration_s} * {self.fps} gives "
+                                                            f"{self.n_frames} frame(s); a take needs 2 frames or more")
+        self._cameras_see_the_subject()
         if self.sensor.exposure_ms > 1000.0 / self.fps + 1e-9:
             raise ValueError(f"sensor.exposure_ms = {self.sensor.exposure_ms} exceeds the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
         if self.markers_pipeline.calibration == "estimated" and self.calibration_scene is None:
@@ -511,6 +595,50 @@ class Scenario(FrozenModel):
     def command_pipeline(self) -> "PipelineConfig | None":
         """The ``[pipeline]`` when it names a command, else None (the project's pipeline runs)."""
         return self.pipeline if self.pipeline is not None and self.pipeline.kind == "command" else None
+
+    def _cameras_see_the_subject(self) -> None:
+        """Every camera is 0.5 m or more from the subject's vertical axis (x = y = 0) and sees part
+        of it, from the floor to the body's height, within the cone of its narrower field of view
+        (the subject starts there; a camera inside the body or looking elsewhere sees nothing)."""
+        if self.cameras:
+            cams, where = self.cameras, [f"cameras.{i}" for i in range(len(self.cameras))]
+        elif getattr(self.rig, "from_calibration", None) is None:  # a calibration file's rig is checked when it loads
+            cams, where = self.rig.camera_configs(), ["rig"] * self.rig.count
+        else:
+            return
+        column = np.stack([np.zeros(9), np.zeros(9), np.linspace(0.0, self.body.height_m, 9)], axis=1)  # (9, 3) m
+        for cam, field in zip(cams, where):
+            p = np.asarray(cam.position)
+            axis = np.subtract(cam.look_at, p) / np.linalg.norm(np.subtract(cam.look_at, p))
+            rays = column - p
+            dist = np.linalg.norm(rays, axis=1)
+            rig = {k: getattr(self.rig, k) for k in ("count", "radius_m", "height_m", "look_at")} if field == "rig" else None
+            nearest = np.linalg.norm(p - [0.0, 0.0, np.clip(p[2], 0.0, self.body.height_m)])
+            if nearest < 0.5:
+                raise field_error(field if field == "rig" else f"{field}.position", rig or cam.position,
+                                  f"camera {cam.name!r} at {tuple(round(float(v), 3) for v in p)} is {nearest:.2f} m from "
+                                  f"the subject (the line x = y = 0 from the floor to {self.body.height_m} m): inside "
+                                  f"the body; place cameras 0.5 m from it or more")
+            angle = np.degrees(np.arccos(np.clip(rays @ axis / dist, -1.0, 1.0)))
+            if angle.min() > cam.half_fov_deg():
+                raise field_error(field if field == "rig" else f"{field}.look_at", rig or cam.look_at,
+                                  f"camera {cam.name!r} at {tuple(round(float(v), 3) for v in p)} looking at {cam.look_at} "
+                                  f"does not see the subject (the line x = y = 0 from the floor to {self.body.height_m} m "
+                                  f"is {angle.min():.0f} deg off its axis, its field of view reaches "
+                                  f"{cam.half_fov_deg():.0f} deg); point it at the subject")
+
+    def check_runnable(self, source: Path | str) -> None:
+        """What a run (render, pipelines, scores) needs beyond a valid scenario, which may also
+        just be rendered (one camera is a valid render): a :class:`ScenarioError` naming
+        ``source`` before anything renders. The marker pipeline and the calibration session
+        triangulate, so they need two cameras."""
+        n = len(self.cameras) if self.cameras else None if getattr(self.rig, "from_calibration", None) else self.rig.count
+        needs = ("the marker pipeline" if self.subject.markers != "none" or self.motion.c3d or self.motion.trc
+                 else "the calibration session" if self.calibration_scene is not None else None)
+        if n == 1 and needs:
+            field = "cameras" if self.cameras else "rig.count"
+            raise ScenarioError(source, field, [c.name for c in self.cameras] if self.cameras else 1,
+                                f"{needs} triangulates, so it needs two cameras or more")
 
     @property
     def n_frames(self) -> int:
@@ -567,12 +695,16 @@ def validation_error_to_scenario_error(path: Path, exc: ValidationError) -> Scen
     loc = _format_loc(tuple(err.get("loc", ())))
     value = err.get("input")
     msg = err.get("msg", "invalid")
+    if err.get("type") == "scenario_field":  # a model's check about one of its fields (field_error)
+        ctx = err.get("ctx", {})
+        loc = ctx["field"] if loc == "<root>" else f"{loc}.{ctx['field']}"
+        value = ctx["value"]
     if err.get("type") == "extra_forbidden":
         msg = "unknown field; check the spelling against `simbench info --schema`"
     if err.get("type") == "missing":
         value = "<missing>"
         msg = "this field is required"
-    if isinstance(value, dict):
+    if isinstance(value, dict) and err.get("type") != "scenario_field":
         value = "{...}"
     extra = f" (and {len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
     return ScenarioError(path, loc, value, msg + extra)
@@ -584,9 +716,18 @@ def read_toml_file(path: Path, where_they_live: str) -> dict:
     if not path.is_file():
         raise ScenarioError(path, "<file>", str(path), f"file not found; {where_they_live}")
     try:
-        return tomllib.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line_no = exc.object.count(b"\n", 0, exc.start) + 1
+        line = exc.object.splitlines()[line_no - 1].decode("utf-8", "replace")  # shown with U+FFFD where it is not UTF-8
+        raise ScenarioError(path, "<encoding>", line, f"line {line_no} (byte {exc.start} of the file) is not UTF-8; "
+                                                      f"TOML files are UTF-8 text, save it as such") from None
+    except OSError as exc:
+        raise ScenarioError(path, "<file>", str(path), f"cannot be read ({exc.strerror})") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from exc
+        raise ScenarioError(path, "<syntax>", str(exc), "fix the TOML syntax at the line given") from None
 
 
 def parse_overrides(items: list[str]) -> dict[str, object]:

@@ -8,6 +8,7 @@ Commands import the pipeline when they run, so ``mocap --help`` stays quick.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 from typing import Optional
@@ -41,11 +42,21 @@ def markers(
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, capture_from_detections, export_capture
 
+    from mocap.errors import MocapInputError
+    from mocap.trackers import get_tracker
+
     cal = Calibration.load(calibration)
+    if len(cal) < 2:
+        raise InputFileError(calibration, f"describes {len(cal)} camera ({', '.join(cal.names)})",
+                             "markers are triangulated: give the calibration of two cameras or more")
     tmpl = load_template(template)
     paths = order_videos_by_camera(list(videos), cal.names)
     if mode not in ("ir", "visible"):
         raise InputFileError(Path("--mode"), f"value {mode!r}", "use 'ir' or 'visible'")
+    try:
+        get_tracker(tracker)
+    except MocapInputError as exc:
+        raise InputFileError(Path("--tracker"), f"value {tracker!r}", str(exc)) from None
     probes = [probe_video(p) for p in paths]
     check_videos_against_calibration(paths, probes, cal)
     if fps is None:
@@ -61,7 +72,7 @@ def markers(
 
         subj = SubjectModel.load(subject)
     params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None)
-    with atomic_output_dir(out_dir) as tmp:
+    with _output_errors(out_dir), atomic_output_dir(out_dir) as tmp:
         stream = DetectionStream(len(cal), params.detection)
         for images in zip(*(iter_video_frames(p) for p in paths)):
             stream.add(images)
@@ -81,6 +92,17 @@ def markers(
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out_dir}/",
                   markup=False)
+
+
+@contextlib.contextmanager
+def _output_errors(out_dir: Path):
+    """A write that fails (a full disk, a permission) as one line naming ``--out``; the atomic
+    output folder has already removed what was written."""
+    try:
+        yield
+    except OSError as exc:
+        raise InputFileError(out_dir, f"--out could not be written ({exc.strerror or exc}: {exc.filename or ''})",
+                             "free some space or choose another --out; nothing was written there") from None
 
 
 @app.command()

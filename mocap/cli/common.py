@@ -50,6 +50,11 @@ def order_videos_by_camera(videos: list[Path], camera_names: list[str]) -> list[
     """Match video files to calibration cameras by file stem (``cam0.mp4`` -> ``cam0``), else by order."""
     stems = {v.stem: v for v in videos}
     if all(n in stems for n in camera_names):
+        extra = [v for v in videos if v.stem not in camera_names]
+        if extra or len(videos) != len(camera_names):
+            raise InputFileError(extra[0] if extra else videos[0], f"{len(videos)} videos for {len(camera_names)} calibrated cameras "
+                                 f"{camera_names}" + (f"; {extra[0].name} is none of them" if extra else ", some twice"),
+                                 "pass one video per calibrated camera")
         return [stems[n] for n in camera_names]
     if len(videos) != len(camera_names):
         raise InputFileError(videos[0] if videos else Path("."), f"{len(videos)} videos for {len(camera_names)} calibrated cameras {camera_names}",

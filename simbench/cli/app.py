@@ -81,6 +81,7 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
     from simbench.scenario import load_scenario, parse_overrides
 
     sc = load_scenario(scenario, overrides=parse_overrides(set_))
+    sc.check_runnable(scenario)
     out = out if out is not None else default_run_dir(sc.name, scenario)
     replaceable_state(out)  # refuse a path that is not the bench's before anything renders
     prog, advance = progress_bar(f"run {sc.name}", sc.n_frames)

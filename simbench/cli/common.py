@@ -30,7 +30,8 @@ from rich.text import Text
 
 from mocap.errors import MocapInputError
 from simbench import interrupts
-from simbench.errors import SimbenchInputError
+from simbench.errors import GLUnavailableError, SimbenchInputError
+from simbench.render.gl_context import check_requested_platform
 
 console = Console(stderr=True)
 
@@ -103,6 +104,11 @@ def run_app(app: typer.Typer) -> None:
     counts as that signal."""
     configure_logging()
     interrupts.install()
+    try:
+        check_requested_platform()
+    except GLUnavailableError as exc:
+        print_error(str(exc))
+        sys.exit(EXIT_USER_ERROR)
     try:
         app()
         interrupts.raise_if_pending()

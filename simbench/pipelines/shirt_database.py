@@ -201,6 +201,22 @@ def default_database_path(params: BodyParams, sampling: PoseSampling) -> Path:
     return cache_dir() / f"shirt_db_{database_key(params, sampling)}.npz"
 
 
+class _BuildEstimate:
+    """Says once, 10 s into a database build, how long the whole build will take at the rate so far."""
+
+    def __init__(self, total: int, after_s: float = 10.0) -> None:
+        self.total, self.after_s, self.done, self.t0, self.said = total, after_s, 0, time.perf_counter(), False
+
+    def advance(self, n: int) -> None:
+        self.done += n
+        elapsed = time.perf_counter() - self.t0
+        if not self.said and elapsed >= self.after_s and self.done < self.total:
+            self.said = True
+            rate = self.done / elapsed
+            log.info("shirt pose database: %d of %d poses in %.0f s (%.0f poses/s): about %.0f min to go",
+                     self.done, self.total, elapsed, rate, (self.total - self.done) / rate / 60.0)
+
+
 def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path | None = None,
                     progress_factory: ProgressFactory | None = None) -> PoseDatabase:
     """Load the database at ``path`` (default: the cache), building it first when missing.
@@ -208,16 +224,21 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
     ``progress_factory`` shows the build's progress (the command line passes its progress
     bar); without it the build reports only its start and end (``logging``).
     """
+    named = path is not None
     path = Path(path) if path is not None else default_database_path(params, sampling)
     if path.is_file():
         return PoseDatabase.load(path)
-    log.info("shirt pose database %s missing: building %d poses", path, sampling.n_poses)
+    where = (f"shirt_pipeline.database = {str(path)!r} does not exist" if named
+             else f"no cached shirt pose database for this subject and database_size ({path})")
+    log.warning("%s: building it now, %d poses (how long it takes is said 10 s in; `simbench shirt build-db` "
+                "builds it ahead of a run)", where, sampling.n_poses)
+    estimate = _BuildEstimate(int(sampling.n_poses))
     if progress_factory is None:
-        db = build_database(params, sampling)
+        db = build_database(params, sampling, progress=estimate.advance)
     else:
         prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
         with prog:
-            db = build_database(params, sampling, progress=advance)
+            db = build_database(params, sampling, progress=lambda n: (advance(n), estimate.advance(n)))
     db.save(path)
     log.info("wrote %s (%d poses)", path, len(db))
     return db

@@ -77,18 +77,8 @@ class VirtualCamera:
 
     @classmethod
     def rig(cls, cfg: RigConfig) -> list["VirtualCamera"]:
-        """``count`` cameras evenly spread over ``span_deg`` of azimuth around ``look_at``."""
-        cams = []
-        n = cfg.count
-        step = cfg.span_deg / n if cfg.span_deg >= 360.0 else cfg.span_deg / max(n - 1, 1)
-        for i in range(n):
-            az = np.deg2rad(cfg.start_deg + i * step)
-            pos = np.array(cfg.look_at) + np.array([cfg.radius_m * np.cos(az), cfg.radius_m * np.sin(az), 0.0])
-            pos[2] = cfg.height_m
-            cams.append(cls.from_config(CameraConfig(
-                name=f"cam{i}", position=tuple(pos), look_at=cfg.look_at, width=cfg.width, height=cfg.height,
-                hfov_deg=cfg.hfov_deg, distortion=cfg.distortion)))
-        return cams
+        """``count`` cameras evenly spread over ``span_deg`` of azimuth around ``look_at`` (:meth:`RigConfig.camera_configs`)."""
+        return [cls.from_config(c) for c in cfg.camera_configs()]
 
     # ------------------------------------------------------------------ geometry
     @property

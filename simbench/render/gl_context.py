@@ -9,6 +9,7 @@ not set).
 
 from __future__ import annotations
 
+import ctypes.util
 import os
 
 from simbench.errors import GLUnavailableError
@@ -36,6 +37,20 @@ def configure_gl_environment() -> str:
     os.environ.setdefault("PYOPENGL_PLATFORM", platform)
     os.environ.setdefault("MUJOCO_GL", platform)
     return platform
+
+
+#: The native library each platform loads (PyOpenGL and MuJoCo find it by this name).
+_LIBRARIES = {"egl": "EGL", "osmesa": "OSMesa"}
+
+
+def check_requested_platform() -> None:
+    """If ``PYOPENGL_PLATFORM`` or ``MUJOCO_GL`` names a platform, its native library must be
+    installed: a :class:`GLUnavailableError` now, instead of PyOpenGL's ``AttributeError``
+    when MuJoCo is first imported (every ``simbench`` command imports it)."""
+    platform = os.environ.get("PYOPENGL_PLATFORM") or os.environ.get("MUJOCO_GL")
+    if platform in _LIBRARIES and ctypes.util.find_library(_LIBRARIES[platform]) is None:
+        variable = "PYOPENGL_PLATFORM" if os.environ.get("PYOPENGL_PLATFORM") else "MUJOCO_GL"
+        raise GLUnavailableError(f"{variable}={platform} but lib{_LIBRARIES[platform]}.so is not installed. {_FIX}")
 
 
 class GLContext:

@@ -1,0 +1,134 @@
+"""Every bad input a user can give ``simbench run`` or ``mocap markers`` is refused with exit
+code 2 and one line on stderr naming the file and the field (or option), with no traceback, no
+hang and nothing written; every shipped scenario is still accepted.
+
+A reduced version of the fuzzing in ``tests/fuzz_inputs.py`` (the full one:
+``.venv/bin/python tests/fuzz_inputs.py --scenarios 300 --mocap 40``).
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+sys.path.insert(0, str(Path(__file__).parent))
+import fuzz_inputs as fz  # noqa: E402
+
+from simbench.cli.app import app  # noqa: E402
+
+SHIPPED = sorted(p for p in fz.SCENARIOS.glob("*.toml") if p.name != "suites.toml")
+
+
+def _explain(outcomes) -> str:
+    return "\n".join(f"{o.verdict}: {o.label} (exit {o.exit_code}): {o.stderr[:300]}" for o in outcomes if o.verdict != "ok")
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_every_shipped_scenario_is_accepted(path: Path) -> None:
+    """The bounds refuse nothing real: `simbench info` on each shipped scenario."""
+    r = CliRunner().invoke(app, ["info", str(path)])
+    assert r.exit_code == 0, r.stderr
+    assert r.stderr == ""
+
+
+def test_the_harness_sees_an_accepted_scenario(tmp_path) -> None:
+    """The check can fail: an unspoilt scenario reaches the (replaced) run and is reported as accepted."""
+    bases = fz.resolved_bases(["quickstart"])
+    case = fz.Case("000 quickstart unspoilt", "control", ("name",), fz._toml(bases["quickstart"]))
+    out = fz.check_scenario_case(case, tmp_path)
+    assert out.verdict == "accepted", out
+
+
+def test_fuzzed_scenarios_are_refused_with_one_line(tmp_path) -> None:
+    rng = np.random.default_rng(17)
+    cases = fz.scenario_cases(60, rng, fz.resolved_bases())
+    assert len(cases) == 60
+    assert len({c.kind for c in cases}) >= 8  # the draw covers most kinds
+    tally = fz.Tally([fz.check_scenario_case(c, tmp_path) for c in cases])
+    assert tally.counts()["ok"] == len(cases), _explain(tally.outcomes)
+
+
+def test_the_synthetic_take_is_captured(tmp_path) -> None:
+    """The take the mocap cases spoil is a good one: `mocap markers` reconstructs all of it."""
+    code, text = fz.check_good_mocap_take(tmp_path)
+    assert code == 0, text
+    assert "3 labels, reconstructed 1.000" in text
+
+
+def test_fuzzed_mocap_markers_inputs_are_refused_with_one_line(tmp_path) -> None:
+    cases = fz.mocap_cases(0, np.random.default_rng(0))  # every kind once
+    picked = [c for i, c in enumerate(cases) if i % 3 == 0 or "after the export" in c.label or "rotation" in c.label]
+    tally = fz.Tally([fz.check_mocap_case(c, tmp_path) for c in picked])
+    assert tally.counts()["ok"] == len(picked), _explain(tally.outcomes)
+
+
+def test_a_failure_after_the_export_began_leaves_nothing(tmp_path) -> None:
+    case = next(c for c in fz.mocap_cases(0, np.random.default_rng(0)) if "after the export" in c.label)
+    out = fz.check_mocap_case(case, tmp_path)
+    assert out.verdict == "ok", out
+    assert "No space left on device" in out.stderr
+    assert not list((tmp_path / case.label.split()[0]).glob(".cap.*"))
+
+
+def test_real_subprocesses(tmp_path) -> None:
+    """Through the real command lines (rich console, run_app): one scenario and one mocap case."""
+    bases = fz.resolved_bases(["quickstart"])
+    data = bases["quickstart"]
+    data["rig"]["height_m"] = float("nan")
+    scen = fz.Case("000 quickstart rig.height_m = nan", "bad number", ("rig.height_m",), fz._toml(data), value=float("nan"))
+    moc = next(c for c in fz.mocap_cases(0, np.random.default_rng(0)) if "NaN in a calibration's K" in c.label)
+    for case in (scen, moc):
+        out = fz.check_in_subprocess(case, tmp_path)
+        assert out.verdict == "ok", out
+
+
+def test_non_utf8_scenario_is_one_line(tmp_path) -> None:
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(b'name = "caf\xe9"\n')
+    r = CliRunner().invoke(app, ["info", str(bad)])
+    assert r.exit_code == 2
+    assert r.stderr.count("\n") == 1 and "'<encoding>'" in r.stderr and "got 'name = \"caf\ufffd\"'; line 1 (byte 11 of the file) is not UTF-8" in r.stderr, r.stderr
+
+
+@pytest.mark.skipif(ctypes.util.find_library("OSMesa") is not None, reason="libOSMesa is installed here")
+def test_osmesa_requested_without_libosmesa_is_one_line(tmp_path) -> None:
+    r = subprocess.run([sys.executable, "-c", "from simbench.cli.app import main; main()", "info", str(SHIPPED[0])],
+                       capture_output=True, text=True, timeout=120, env={**os.environ, "MUJOCO_GL": "osmesa"}, cwd=tmp_path)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "MUJOCO_GL=osmesa but libOSMesa.so is not installed" in lines[0], r.stderr
+
+
+def test_one_camera_is_a_valid_render_but_not_a_run(tmp_path) -> None:
+    from simbench.errors import ScenarioError
+    from simbench.scenario import load_scenario
+
+    sc = load_scenario(fz.SCENARIOS / "quickstart.toml", overrides={"rig.count": 1})  # a render of one camera is fine
+    with pytest.raises(ScenarioError, match="field 'rig.count': got 1; the marker pipeline triangulates"):
+        sc.check_runnable("quickstart.toml")
+    load_scenario(fz.SCENARIOS / "quickstart.toml", overrides={"rig.count": 1, "subject.markers": "none"}).check_runnable("x")
+
+
+@pytest.mark.parametrize("overrides, field, words", [
+    ({"rig.radius_m": 0.35}, "rig", "inside the body"),
+    ({"rig.look_at": [40.0, 0.0, 1.0]}, "rig", "does not see the subject"),
+    ({"duration_s": 0.04}, "duration_s", "gives 1 frame(s)"),
+    ({"rig.width": 5000}, "rig.width", "less than or equal to 4096"),
+    ({"fps": True}, "fps", "expected a number, got bool"),
+    ({"lighting.scale": 1e300}, "lighting.scale", "less than or equal to 1000"),
+    ({"rig.distortion": [float("inf"), 0, 0, 0, 0]}, "rig.distortion.0", "finite"),
+])
+def test_schema_refusals_name_the_field(overrides, field, words) -> None:
+    from simbench.errors import ScenarioError
+    from simbench.scenario import load_scenario
+
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(fz.SCENARIOS / "quickstart.toml", overrides=overrides)
+    assert err.value.field == field and words in str(err.value), str(err.value)
