@@ -81,3 +81,36 @@ def angle_traces(times: np.ndarray, est_rad: np.ndarray, true_rad: np.ndarray, n
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def seed_spread(values: dict[str, np.ndarray], path: str | Path, ci: dict[str, tuple[float, float]] | None = None,
+                title: str = "Spread across seeds", cols: int = 4) -> None:
+    """One panel per metric: a box of its per-seed values (shape (n_seeds,), NaN = none), every
+    seed as a dot (jittered sideways), and the mean with its confidence interval ``ci[metric]``."""
+    names = list(values)
+    rows = max(1, int(np.ceil(len(names) / cols)))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 2.6 * rows), squeeze=False)
+    jitter = np.random.default_rng(0)  # display only: fixed, so the same values give the same picture
+    for ax, name in zip(axes.ravel(), names):
+        v = np.asarray(values[name], float)
+        fin = v[np.isfinite(v)]
+        if fin.size:
+            ax.boxplot([fin], widths=0.5, showfliers=False, medianprops={"color": "C1"})
+            ax.plot(1 + jitter.uniform(-0.12, 0.12, fin.size), fin, "o", color="C0", ms=3.5, alpha=0.7)
+            lo, hi = (ci or {}).get(name, (np.nan, np.nan))
+            if np.isfinite(lo) and np.isfinite(hi):
+                m = fin.mean()  # a BCa interval of a skewed sample may sit beside its mean: clip the bars at it
+                ax.errorbar([1.38], [m], yerr=[[max(0.0, m - lo)], [max(0.0, hi - m)]], fmt="D", color="C3", ms=4, capsize=3)
+        n_nan = int(v.size - fin.size)
+        ax.set_title(name + (f" ({n_nan} NaN)" if n_nan else ""), fontsize=8)
+        ax.set_xticks([1, 1.38])
+        ax.set_xticklabels([f"{fin.size} seeds", "mean, CI"], fontsize=7)
+        ax.set_xlim(0.5, 1.6)
+        ax.tick_params(axis="y", labelsize=7)
+        ax.grid(alpha=0.3, axis="y")
+    for ax in axes.ravel()[len(names):]:
+        ax.axis("off")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

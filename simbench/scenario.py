@@ -548,6 +548,8 @@ class Scenario(FrozenModel):
     name: str
     description: str = ""
     seed: Int = Field(0, ge=0, le=2**32 - 1)
+    seeds: Int = Field(1, ge=1, le=1000, description="`simbench run` without --seeds runs this many seeds: seed, seed + 1, ... "
+                       "(not part of a run's content hash: each run has one seed)")
     duration_s: Real = Field(2.0, gt=0.0, le=120.0)
     fps: Real = Field(30.0, gt=0.0, le=1000.0)
     body: BodyConfig = BodyConfig()
@@ -650,7 +652,9 @@ class Scenario(FrozenModel):
 
     def content_hash(self) -> str:
         """Stable hash of the resolved scenario (what determines the run's numbers)."""
-        blob = json.dumps(self.model_dump(mode="json"), sort_keys=True).encode()
+        data = self.model_dump(mode="json")
+        data.pop("seeds", None)  # how many seeds to run is not one run's content (and hashes of older files stay)
+        blob = json.dumps(data, sort_keys=True).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 
     def with_overrides(self, overrides: dict[str, object]) -> "Scenario":

@@ -157,6 +157,14 @@ def _check_losses_and_errors_recompute_from_the_per_frame_arrays(study):
             assert cell["samples"] == len(v)
             if len(v):
                 assert cell["mean"] == pytest.approx(v.mean())
+            # The interval across videos: the mean of the per-video means, bootstrapped over videos.
+            means = [p.mean() for p in parts if len(p)]
+            across = cell["across_videos"]
+            assert across["videos"] == len(means)
+            if means:
+                assert across["mean"] == pytest.approx(np.mean(means))
+            if len(set(means)) > 1:
+                assert across["ci95"][0] < np.mean(means) < across["ci95"][1]
 
 
 def _check_rendered_videos_match_their_ground_truth(study):

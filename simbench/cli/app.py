@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -71,8 +72,16 @@ def render(scenario: Path = typer.Argument(..., help="scenario TOML"),
 @user_errors
 def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
         out: Path = typer.Option(None, "--out", help=OUT_HELP + " (default: out/<scenario name>)"),
-        set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set sensor.exposure_ms=20")) -> None:
+        set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set sensor.exposure_ms=20"),
+        seeds: Optional[int] = typer.Option(None, "--seeds", min=1, max=1000,
+                                            help="run N seeds (seed, seed+1, ...; default: the scenario's `seeds`, 1) and "
+                                                 "summarise each metric across them"),
+        seed_start: Optional[int] = typer.Option(None, "--seed-start", min=0, help="first seed of --seeds (default: the scenario's seed)"),
+        workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="--seeds: local worker processes (default: all cores)"),
+        scheduler: Optional[str] = typer.Option(None, "--scheduler", help="--seeds: run on a Dask cluster: tcp://HOST:PORT")) -> None:
     """Render, run the capture pipeline, score against ground truth; write metrics.json and report.md.
+
+    With --seeds N (or a scenario's `seeds = N`): N runs in OUT/seeds/seed-NNNN/, and OUT/metrics.json holds each metric's per-seed values, mean, median, SD and 95 % bootstrap CI; OUT/report.md shows their spread.
 
     Exit code 3: the run finished but a stage after rendering failed (e.g. an export); metrics.json and report.md are written and name the stage.
     """
@@ -80,10 +89,15 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
     from simbench.pipelines.run import run_scenario
     from simbench.scenario import load_scenario, parse_overrides
 
-    sc = load_scenario(scenario, overrides=parse_overrides(set_))
+    overrides = parse_overrides(set_)
+    sc = load_scenario(scenario, overrides=overrides)
     sc.check_runnable(scenario)
     out = out if out is not None else default_run_dir(sc.name, scenario)
     replaceable_state(out)  # refuse a path that is not the bench's before anything renders
+    n_seeds = seeds if seeds is not None else sc.seeds
+    if n_seeds > 1 or seeds is not None or seed_start is not None:
+        _run_seeds(sc, out, n_seeds, seed_start, overrides, workers, scheduler)
+        return
     prog, advance = progress_bar(f"run {sc.name}", sc.n_frames)
     with prog:
         result = run_scenario(sc, out, progress=advance, progress_factory=progress_bar)
@@ -93,6 +107,35 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
         print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
     for f in result.failures:
         print_error(f"{out}: {f.line()} (the run's other outputs, metrics.json and report.md are written)")
+    if result.failures:
+        raise typer.Exit(EXIT_STAGE_FAILED)
+
+
+def _run_seeds(sc, out: Path, n: int, start, overrides, workers, scheduler) -> None:
+    """``simbench run --seeds N``: the replicate runs, then each metric's mean, CI and spread."""
+    from simbench.cli.sweep import runs_progress
+    from simbench.sweeps.seeds import run_seeds
+
+    prog = runs_progress(f"run {sc.name}, {n} seeds")
+    task = prog.add_task(f"run {sc.name}, {n} seeds", total=n, failed=0, skipped=0)
+    failed = 0
+
+    def on_record(rec) -> None:
+        nonlocal failed
+        failed += rec.status != "ok"
+        prog.update(task, advance=1, failed=failed)
+
+    with prog:
+        result = run_seeds(sc, out, n, start, overrides, workers, scheduler, on_record)
+    console.print(f"wrote {out}/metrics.json and {out}/report.md (seeds {result.seeds[0]}..{result.seeds[-1]} in "
+                  f"{out}/seeds/)", markup=False, highlight=False)
+    width = max((len(k) for k in result.summaries), default=6)
+    print(f"{'metric':<{width}}  {'mean':>10}  {'95% CI':>21}  {'median':>10}  {'sd':>9}")
+    for k, s in sorted(result.summaries.items()):
+        ci = f"{s.ci_low:.4g} .. {s.ci_high:.4g}"
+        print(f"{k:<{width}}  {s.mean:>10.4g}  {ci:>21}  {s.median:>10.4g}  {s.sd:>9.3g}")
+    for seed, cause in result.failures:
+        print_error(f"{out}: seed {seed}: {cause}")
     if result.failures:
         raise typer.Exit(EXIT_STAGE_FAILED)
 

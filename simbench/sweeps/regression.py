@@ -31,17 +31,20 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
+import warnings
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Literal
 
+import numpy as np
 from pydantic import Field, ValidationError, field_validator, model_validator
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from eval.seed_stats import holm, shift_test
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
 from simbench.scenario import FrozenModel, load_scenario, read_toml_file, validation_error_to_scenario_error
@@ -95,6 +98,15 @@ class Suite(FrozenModel):
     set: dict[str, Any] = Field(default_factory=dict)
     scenarios: list[SuiteScenario] = Field(min_length=1)
     tolerances: dict[str, Tolerance] = Field(default_factory=dict)
+    seeds: int = Field(1, ge=1, le=1000, description="seeds `simbench check` runs per scenario (scenario seed + i)")
+    baseline_seeds: int | None = Field(None, ge=1, le=10000, description="seeds per scenario in the baseline "
+                                       "(scenario seed + 1000 + j; default 4 x seeds)")
+    alpha: float = Field(0.01, gt=0.0, lt=0.5, description="false-alarm rate of a whole check (Holm over every tested "
+                         "metric of every scenario)")
+
+    @property
+    def n_baseline_seeds(self) -> int:
+        return self.baseline_seeds if self.baseline_seeds is not None else 4 * self.seeds
 
     @field_validator("set", mode="before")
     @classmethod
@@ -195,28 +207,79 @@ def default_baseline_path(suites_file: str | Path, suite: str) -> Path:
 
 
 # ---------------------------------------------------------------------------- running
+#: Seeds of a suite scenario: ``check`` runs ``seed + i``, the baseline ``seed + BASELINE_SEED_OFFSET + j``,
+#: ``check --calibrate`` draws fresh sets from ``seed + CALIBRATION_SEED_OFFSET + k``: three disjoint ranges.
+BASELINE_SEED_OFFSET, CALIBRATION_SEED_OFFSET = 1000, 2000
+
+
+def ensemble_seeds(spec: RunSpec, n: int, offset: int = 0) -> list[int]:
+    return [spec.scenario.seed + offset + i for i in range(n)]
+
+
 def run_suite(runs: list[RunSpec], out_dir: str | Path | None = None, workers: int | None = None,
               scheduler: str | None = None,
-              on_record: Callable[[RunRecord, int, int], None] | None = None) -> dict[str, RunRecord]:
-    """Run the suite's scenarios (process pool or Dask); ``{suite scenario name: record}``."""
-    tasks = [RunTask(r, str(Path(out_dir, r.factors["scenario"]).resolve()) if out_dir else None) for r in runs]
-    out: dict[str, RunRecord] = {}
+              on_record: Callable[[RunRecord, int, int], None] | None = None,
+              seeds: int | dict[str, list[int]] | None = None, detection_noise_px: float = 0.0) -> dict[str, list[RunRecord]]:
+    """Run the suite's scenarios on their seed ensembles (process pool or Dask).
+
+    ``seeds``: None or 1 runs each scenario once as resolved (its own seed); ``n`` runs seeds
+    ``seed + i``, ``i < n``; a dict gives each scenario's seeds. Returns ``{suite scenario name:
+    [record per seed]}``; each record carries the resolved suite scenario's hash and overrides
+    (the ensemble's, not the seed's), so baselines and checks compare like with like."""
+    specs: list[RunSpec] = []
+    base_of: dict[str, RunSpec] = {}
+    for r in runs:
+        name = str(r.factors["scenario"])
+        base_of[name] = r
+        if seeds is None or seeds == 1:
+            specs.append(replace(r, index=len(specs)))
+            continue
+        for s in (seeds[name] if isinstance(seeds, dict) else ensemble_seeds(r, int(seeds))):
+            sc = r.scenario.with_overrides({"seed": s})
+            ov = {**r.overrides, "seed": s}
+            specs.append(RunSpec(run_id_for(sc, ov), len(specs), r.sweep, {**r.factors, "seed": s}, ov, sc))
+    multi = len(specs) > len(runs)
+
+    def out_for(r: RunSpec) -> str | None:
+        if not out_dir:
+            return None
+        sub = Path(out_dir, str(r.factors["scenario"]))
+        return str((sub / f"seed-{r.factors['seed']:04d}" if multi else sub).resolve())
+
+    tasks = [RunTask(r, out_for(r), detection_noise_px) for r in specs]
+    by_id: dict[str, RunRecord] = {}
     failed = 0
     for rec in iter_records(tasks, workers, scheduler):
         rec.per_frame = None
-        out[str(rec.factors["scenario"])] = rec
+        base = base_of[str(rec.factors["scenario"])]
+        rec.scenario_hash = base.scenario.content_hash()
+        rec.parameters = dict(base.overrides)
+        by_id[rec.run_id] = rec
         failed += rec.status != STATUS_OK
         if on_record:
-            on_record(rec, len(out), failed)
-    return {r.factors["scenario"]: out[r.factors["scenario"]] for r in runs}
+            on_record(rec, len(by_id), failed)
+    out: dict[str, list[RunRecord]] = {str(r.factors["scenario"]): [] for r in runs}
+    for sp in specs:
+        out[str(sp.factors["scenario"])].append(by_id[sp.run_id])
+    return out
 
 
 # ---------------------------------------------------------------------------- baselines
 @dataclass(frozen=True)
 class Baseline:
+    """A suite's baseline. ``scenarios[name]``: ``scenario_hash``, ``parameters``, ``metrics``
+    (``{metric: median over the seeds}``) and ``values`` (``{metric: [value per seed]}``;
+    a baseline written before seed ensembles (format 1) has one value per metric)."""
+
     suite: str
-    scenarios: dict[str, dict]  # name -> {"scenario_hash": str, "metrics": {metric: float}}
+    scenarios: dict[str, dict]
     path: Path
+    format: int = 2
+
+    def values(self, scenario: str, metric: str) -> np.ndarray:
+        base = self.scenarios[scenario]
+        v = base.get("values", {}).get(metric)
+        return np.array([base["metrics"][metric]] if v is None else v, float)
 
 
 def load_baseline(path: str | Path) -> Baseline:
@@ -231,26 +294,50 @@ def load_baseline(path: str | Path) -> Baseline:
     if not isinstance(scen, dict) or not all(isinstance(v, dict) and isinstance(v.get("metrics"), dict) for v in scen.values()):
         raise ScenarioError(path, "scenarios", type(scen).__name__,
                             "expected {name: {\"scenario_hash\": ..., \"metrics\": {...}}}; rewrite with `simbench baseline update`")
-    for v in scen.values():
+    for name, v in scen.items():
         v["metrics"] = {k: (math.nan if x is None else float(x)) for k, x in v["metrics"].items()}
-    return Baseline(str(data.get("suite", "")), scen, path)
+        vals = v.get("values", {})
+        if not isinstance(vals, dict) or not all(isinstance(x, list) for x in vals.values()):
+            raise ScenarioError(path, f"scenarios.{name}.values", type(vals).__name__,
+                                "expected {metric: [value per seed]}; rewrite with `simbench baseline update`")
+        v["values"] = {k: [math.nan if x is None else float(x) for x in xs] for k, xs in vals.items()}
+    return Baseline(str(data.get("suite", "")), scen, path, int(data.get("format", 1)))
 
 
-def write_baseline(path: str | Path, suite: str, records: dict[str, RunRecord]) -> Path:
-    """Write the baseline of a suite run; refuses if any scenario failed."""
-    bad = {n: r.error.splitlines()[0] if r.error else "" for n, r in records.items() if r.status != STATUS_OK}
+def _as_list(r: RunRecord | list[RunRecord]) -> list[RunRecord]:
+    return list(r) if isinstance(r, (list, tuple)) else [r]
+
+
+def _json(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def write_baseline(path: str | Path, suite: str, records: dict[str, RunRecord | list[RunRecord]]) -> Path:
+    """Write the baseline of a suite run (format 2: every metric's value per seed and their
+    median); refuses if any run failed."""
+    records = {n: _as_list(r) for n, r in records.items()}
+    bad = {f"{n} (seed {r.factors.get('seed', '-')})": r.error.splitlines()[0] if r.error else ""
+           for n, rs in records.items() for r in rs if r.status != STATUS_OK}
     if bad:
         raise SimbenchInputError(f"baseline not written: scenario(s) failed: "
                                  + "; ".join(f"{n}: {e}" for n, e in bad.items()) + ". Fix them and run again.")
+    scenarios = {}
+    for n, rs in records.items():
+        names = sorted({m for r in rs for m in r.metrics})
+        vals = {m: [float(r.metrics.get(m, math.nan)) for r in rs] for m in names}
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN metric: its median is NaN (null)
+            med = {m: float(np.nanmedian(v)) for m, v in vals.items()}
+        scenarios[n] = {"scenario_hash": rs[0].scenario_hash, "parameters": rs[0].parameters,
+                        "seeds": [r.factors.get("seed") for r in rs],
+                        "metrics": {m: _json(med[m]) for m in names},
+                        "values": {m: [_json(x) for x in vals[m]] for m in names}}
     data = {
         "suite": suite,
+        "format": 2,
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "versions": package_versions(),
-        "scenarios": {
-            n: {"scenario_hash": r.scenario_hash, "parameters": r.parameters,
-                "metrics": {k: (v if math.isfinite(v) else None) for k, v in sorted(r.metrics.items())}}
-            for n, r in records.items()
-        },
+        "scenarios": scenarios,
     }
     path = Path(path)
     atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
@@ -267,6 +354,9 @@ class MetricCheck:
     status: str
     tolerance: Tolerance | None = None
     note: str = ""
+    p_value: float = math.nan  # one-sided test that the metric got worse, Holm-adjusted over the check (NaN: not tested)
+    n_baseline: int = 1
+    n_current: int = 1
 
     @property
     def delta(self) -> float:
@@ -303,36 +393,80 @@ def judge(baseline: float, current: float, tol: Tolerance) -> str:
     return REGRESSED if worse else IMPROVED
 
 
-def compare(records: dict[str, RunRecord], baseline: Baseline, patterns: list[tuple[str, Tolerance]]) -> list[MetricCheck]:
+def _median(v: np.ndarray) -> float:
+    fin = v[np.isfinite(v)]
+    return float(np.median(fin)) if fin.size else math.nan
+
+
+def compare(records: dict[str, RunRecord | list[RunRecord]], baseline: Baseline, patterns: list[tuple[str, Tolerance]],
+            alpha: float = 0.01) -> list[MetricCheck]:
     """Every metric of every scenario run against the baseline.
 
-    Scenarios of the baseline that were not run (``--only``) are not compared; a
-    scenario that failed is one ``error`` check; a metric in the baseline missing from
-    the run is ``missing``; one not in the baseline is ``new``.
+    With two or more seeds on both sides, a metric with a direction (``worse`` higher or
+    lower) regressed when a one-sided Mann-Whitney U test (:func:`eval.seed_stats.shift_test`:
+    current worse than baseline; a NaN ranks as the worst value) rejects at ``alpha`` after
+    Holm's correction over every tested metric of every scenario (so a whole check raises a
+    false alarm with probability at most ``alpha``) **and** the median moved by more than the
+    tolerance (``max(abs, rel * |baseline median|)``: the practical-effect floor). Improved is
+    the same in the other direction. One seed on either side (or ``worse = "either"``, the
+    deterministic configuration metrics): the tolerance on the medians, as before ensembles.
+
+    Scenarios of the baseline that were not run (``--only``) are not compared; a scenario
+    with a failed run is one ``error`` check; a metric in the baseline missing from the run
+    is ``missing``; one not in the baseline is ``new``.
     """
     checks: list[MetricCheck] = []
+    tested: list[tuple[int, float, float, float, float]] = []  # (check index, p worse, p better, shift, floor)
     nan = math.nan
-    for name, rec in records.items():
+    for name, recs in records.items():
+        recs = _as_list(recs)
         base = baseline.scenarios.get(name)
-        if rec.status != STATUS_OK:
-            checks.append(MetricCheck(name, RUN_ROW, nan, nan, ERROR, note=rec.error.splitlines()[0] if rec.error else "failed"))
+        bad = [r for r in recs if r.status != STATUS_OK]
+        if bad:
+            first = bad[0].error.splitlines()[0] if bad[0].error else "failed"
+            seed = f"seed {bad[0].factors['seed']}: " if "seed" in bad[0].factors and len(recs) > 1 else ""
+            checks.append(MetricCheck(name, RUN_ROW, nan, nan, ERROR, note=seed + first))
             continue
+        cur = {m: np.array([float(r.metrics.get(m, nan)) for r in recs]) for m in sorted({m for r in recs for m in r.metrics})}
         if base is None:
-            for m, v in sorted(rec.metrics.items()):
-                checks.append(MetricCheck(name, m, nan, v, NEW, note="scenario not in the baseline"))
+            for m, v in cur.items():
+                checks.append(MetricCheck(name, m, nan, _median(v), NEW, note="scenario not in the baseline", n_current=len(v)))
             continue
-        note = "" if base.get("scenario_hash") in (None, rec.scenario_hash) else "scenario differs from the baseline's"
+        note = "" if base.get("scenario_hash") in (None, recs[0].scenario_hash) else "scenario differs from the baseline's"
         bm = base["metrics"]
-        for m in sorted(set(bm) | set(rec.metrics)):
+        for m in sorted(set(bm) | set(cur)):
             tol = tolerance_for(m, patterns)
-            if m not in rec.metrics:
+            if m not in cur:
                 checks.append(MetricCheck(name, m, bm[m], nan, MISSING, tol, note))
-            elif m not in bm:
-                checks.append(MetricCheck(name, m, nan, rec.metrics[m], NEW, tol, note))
-            elif tol is None:
-                checks.append(MetricCheck(name, m, bm[m], rec.metrics[m], ERROR, None, "no tolerance matches; add one to suites.toml"))
+                continue
+            c_vals = cur[m]
+            if m not in bm:
+                checks.append(MetricCheck(name, m, nan, _median(c_vals), NEW, tol, note, n_current=len(c_vals)))
+                continue
+            b_vals = baseline.values(name, m)
+            b_med, c_med = _median(b_vals), _median(c_vals)
+            if tol is None:
+                checks.append(MetricCheck(name, m, b_med, c_med, ERROR, None, "no tolerance matches; add one to suites.toml",
+                                          n_baseline=len(b_vals), n_current=len(c_vals)))
+            elif len(b_vals) >= 2 and len(c_vals) >= 2 and tol.worse != "either":
+                worse = shift_test(b_vals, c_vals, tol.worse)
+                better = shift_test(b_vals, c_vals, "lower" if tol.worse == "higher" else "higher")
+                floor = tol.allowed(b_med) if math.isfinite(b_med) else 0.0
+                tested.append((len(checks), worse.p_value, better.p_value, worse.shift, floor))
+                checks.append(MetricCheck(name, m, b_med, c_med, OK, tol, note, n_baseline=len(b_vals), n_current=len(c_vals)))
             else:
-                checks.append(MetricCheck(name, m, bm[m], rec.metrics[m], judge(bm[m], rec.metrics[m], tol), tol, note))
+                checks.append(MetricCheck(name, m, b_med, c_med, judge(b_med, c_med, tol), tol, note,
+                                          n_baseline=len(b_vals), n_current=len(c_vals)))
+    if tested:
+        p_worse = holm([t[1] for t in tested])
+        p_better = holm([t[2] for t in tested])
+        for (i, _, _, shift, floor), pw, pb in zip(tested, p_worse, p_better):
+            status = OK
+            if pw < alpha and shift > floor:
+                status = REGRESSED
+            elif pb < alpha and -shift > floor:
+                status = IMPROVED
+            checks[i] = replace(checks[i], status=status, p_value=float(pw))
     return checks
 
 
@@ -364,6 +498,10 @@ def _fmt(v: float) -> str:
     return "—" if not math.isfinite(v) else f"{v:.4g}"
 
 
+def _p(c: MetricCheck) -> str:
+    return f"{c.p_value:.2g}" if math.isfinite(c.p_value) else ""
+
+
 def _change(c: MetricCheck) -> str:
     if not (math.isfinite(c.baseline) and math.isfinite(c.current)):
         return ""
@@ -382,13 +520,18 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
     scen = sorted({c.scenario for c in checks})
     counts = {s: sum(c.status == s for c in checks) for s in (REGRESSED, MISSING, ERROR, IMPROVED, NEW, OK)}
     if shown:
-        t = Table(title=escape(f"simbench check --suite {suite} against {baseline}"), title_justify="left")
+        n_b = max((c.n_baseline for c in checks), default=1)
+        n_c = max((c.n_current for c in checks), default=1)
+        how = (f"; medians of {n_c} seeds against {n_b} baseline seeds; regressed: one-sided Mann-Whitney U, Holm-adjusted "
+               f"p below alpha and a change beyond the tolerance" if n_b > 1 and n_c > 1 else "")
+        t = Table(title=escape(f"simbench check --suite {suite} against {baseline}{how}"), title_justify="left")
         t.add_column("scenario", no_wrap=True)
         t.add_column("metric", no_wrap=True)
         t.add_column("baseline", justify="right", no_wrap=True)
         t.add_column("current", justify="right", no_wrap=True)
         t.add_column("change", justify="right", no_wrap=True)
         t.add_column("tolerance", no_wrap=True)
+        t.add_column("p (Holm)", justify="right", no_wrap=True)
         t.add_column("status", no_wrap=True)
         with_notes = any(c.note and c.note not in _SCENARIO_NOTES for c in shown)
         if with_notes:
@@ -397,7 +540,7 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
         for c in sorted(shown, key=lambda c: (order[c.status], c.scenario, c.metric)):
             st = _STYLE[c.status]
             row = [escape(c.scenario), escape(c.metric), _fmt(c.baseline), _fmt(c.current), _change(c),
-                   c.tolerance.describe() if c.tolerance else "", f"[{st}]{c.status.upper()}[/]"]
+                   c.tolerance.describe() if c.tolerance else "", _p(c), f"[{st}]{c.status.upper()}[/]"]
             if with_notes:
                 note = "" if c.note in _SCENARIO_NOTES else c.note
                 row.append(escape(f"error: {note}" if c.metric == RUN_ROW and c.status == ERROR else note))
@@ -429,7 +572,9 @@ def write_junit(checks: list[MetricCheck], path: str | Path, suite: str, wall_s:
     for c in checks:
         tc = ET.SubElement(ts, "testcase", classname=f"{suite}.{c.scenario}", name=c.metric, time="0")
         detail = (f"baseline {_fmt(c.baseline)}, current {_fmt(c.current)}, change {_change(c) or 'n/a'}; "
-                  f"tolerance: {c.tolerance.describe() if c.tolerance else 'none'}" + (f"; {c.note}" if c.note else ""))
+                  f"tolerance: {c.tolerance.describe() if c.tolerance else 'none'}" + (f"; {c.note}" if c.note else "")
+                  + (f"; p (one-sided Mann-Whitney U, Holm) {_p(c)}, {c.n_current} seeds against {c.n_baseline}"
+                     if math.isfinite(c.p_value) else ""))
         if c.status in (REGRESSED, MISSING):
             ET.SubElement(tc, "failure", message=f"{c.metric} {c.status}: {detail}", type=c.status).text = detail
         elif c.status == ERROR:

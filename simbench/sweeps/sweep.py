@@ -294,6 +294,9 @@ class RunTask:
 
     spec: RunSpec
     out_dir: str | None = None
+    #: Gaussian noise (px, SD per axis) added to every 2D detection before the pipeline: an injected
+    #: regression of `simbench check --calibrate`, not a scenario field (0: the run as the scenario says).
+    detection_noise_px: float = 0.0
 
 
 # One GL-rendering run at a time per process: Dask workers may run tasks on several
@@ -351,7 +354,8 @@ def execute_run(task: RunTask) -> RunRecord:
         try:
             from simbench.pipelines.run import run_scenario  # MuJoCo and GL load in the workers only
 
-            result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None)
+            result = run_scenario(task.spec.scenario, task.out_dir, write_outputs=task.out_dir is not None,
+                                  detection_noise_px=task.detection_noise_px)
             metrics = {k: float(v) for k, v in result.metrics.items()}
             # A stage that failed after rendering (e.g. an export) fails the run; its
             # metrics are kept with it (simbench.pipelines.run: a run never loses its metrics).

@@ -110,6 +110,11 @@ def tables_dict(result: StudyResult) -> dict:
                           "upper": _nan_to_none(s.interval.upper),
                           "shapiro_w": _nan_to_none(s.normality.statistic), "shapiro_p": _nan_to_none(s.normality.p_value),
                           "normal": s.normality.normal}
+            v = result.errors_across_videos.get(c, {}).get(n)
+            if v is not None:  # the videos as replicates: mean of per-video means, bootstrap CI across videos
+                errs[c][n]["across_videos"] = {"videos": v.n_finite, "mean": _nan_to_none(v.mean),
+                                               "ci95": [_nan_to_none(v.ci_low), _nan_to_none(v.ci_high)],
+                                               "video_means": [_nan_to_none(x) for x in v.values]}
     cost = {n: {str(r.n_markers): {"p5_ms": r.p5_ms, "median_ms": r.median_ms, "p95_ms": r.p95_ms, "max_ms": r.max_ms}
                 for r in result.cost.rows if r.tracker == n} for n in result.trackers}
     return {

@@ -53,8 +53,8 @@ def format_loss_variants(result: StudyResult) -> str:
 
 def format_error_table(result: StudyResult, category: str) -> str:
     """One of Tables II-IV in Markdown, the paper's row beside ours."""
-    lines = ["| tracker | samples | lower | mean | upper | Shapiro-Wilk W (p) | normal? | seed 000: samples, lower, mean, upper |",
-             "|---|---:|---:|---:|---:|---:|---|---|"]
+    lines = ["| tracker | samples | lower | mean | upper | Shapiro-Wilk W (p) | normal? | videos | mean of video means, 95 % CI across videos | seed 000: samples, lower, mean, upper |",
+             "|---|---:|---:|---:|---:|---:|---|---:|---|---|"]
     for n in result.trackers:
         s = result.errors[category][n]
         iv, nt = s.interval, s.normality
@@ -62,7 +62,9 @@ def format_error_table(result: StudyResult, category: str) -> str:
         paper = f"{p[0]}, {p[1]:.2f}, {p[2]:.2f}, {p[3]:.2f}" if p else "-"
         sw = f"{_f(nt.statistic, 3)} ({nt.p_value:.1e})" if np.isfinite(nt.p_value) else "n/a"
         normal = "n/a" if not np.isfinite(nt.p_value) else ("yes" if nt.normal else "no")
-        lines.append(f"| {n} | {iv.n} | {_f(iv.lower)} | {_f(iv.mean)} | {_f(iv.upper)} | {sw} | {normal} | {paper} |")
+        v = result.errors_across_videos.get(category, {}).get(n)
+        across = f"| {v.n_finite} | {_f(v.mean)} ({_f(v.ci_low)} .. {_f(v.ci_high)}) " if v is not None else "| - | - "
+        lines.append(f"| {n} | {iv.n} | {_f(iv.lower)} | {_f(iv.mean)} | {_f(iv.upper)} | {sw} | {normal} {across}| {paper} |")
     return "\n".join(lines)
 
 
