@@ -253,6 +253,20 @@ def _sides_cut(grid_px: np.ndarray, size: tuple[int, int], margin: float) -> lis
     return _border_sides(np.concatenate(ext) if ext else grid_px.reshape(-1, 2), size, margin)
 
 
+def _unusable_image(gray: np.ndarray, size: tuple[int, int], sharpness: float,
+                    settings: DetectionSettings) -> BoardDetection | None:
+    """Why no board can be found in this image at all (uniform or blurred), or None."""
+    if float(gray.std()) < 3.0:
+        return _empty(size, sharpness, "not found",
+                      f"the image is almost uniform (grey-level spread {float(gray.std()):.1f})",
+                      "check the lens cap, the lighting and that the camera delivers frames")
+    if sharpness < settings.blur_threshold:
+        return _empty(size, sharpness, "blurred",
+                      f"image blurred (variance of Laplacian {sharpness:.1f} < {settings.blur_threshold:g})",
+                      "focus the camera, hold the board still, or use more light / a shorter exposure")
+    return None
+
+
 def _find_partial(gray: np.ndarray) -> np.ndarray | None:
     """Largest visible checkerboard corner grid ``(rows, cols, 2)``, any size >= 3x3."""
     ok, part, meta = cv2.findChessboardCornersSBWithMeta(gray, (3, 3), cv2.CALIB_CB_LARGER | cv2.CALIB_CB_NORMALIZE_IMAGE)
@@ -274,14 +288,9 @@ def _diagnose_checkerboard(gray: np.ndarray, spec: BoardSpec, settings: Detectio
                           f"board cut off at the image border: only {seen} are visible, the rest is beyond the "
                           f"{'/'.join(sides)} edge",
                           "keep the whole board, with a white margin, inside every camera's view")
-    if float(gray.std()) < 3.0:
-        return _empty(size, sharpness, "not found",
-                      f"the image is almost uniform (grey-level spread {float(gray.std()):.1f})",
-                      "check the lens cap, the lighting and that the camera delivers frames")
-    if sharpness < settings.blur_threshold:
-        return _empty(size, sharpness, "blurred",
-                      f"image blurred (variance of Laplacian {sharpness:.1f} < {settings.blur_threshold:g})",
-                      "focus the camera, hold the board still, or use more light / a shorter exposure")
+    unusable = _unusable_image(gray, size, sharpness, settings)
+    if unusable is not None:
+        return unusable
     if grid is not None:
         pr, pc = grid.shape[:2]
         if {pc, pr} != {cols, rows}:
@@ -356,14 +365,9 @@ def _detect_charuco(gray: np.ndarray, spec: BoardSpec, settings: DetectionSettin
             return _empty(size, sharpness, "too small",
                           f"board too small in the image (its markers are only found after 2x upsampling)",
                           "move the board closer to the camera or print a larger board")
-    if float(gray.std()) < 3.0:
-        return _empty(size, sharpness, "not found",
-                      f"the image is almost uniform (grey-level spread {float(gray.std()):.1f})",
-                      "check the lens cap, the lighting and that the camera delivers frames")
-    if sharpness < settings.blur_threshold:
-        return _empty(size, sharpness, "blurred",
-                      f"image blurred (variance of Laplacian {sharpness:.1f} < {settings.blur_threshold:g})",
-                      "focus the camera, hold the board still, or use more light / a shorter exposure")
+    unusable = _unusable_image(gray, size, sharpness, settings)
+    if unusable is not None:
+        return unusable
     return _empty(size, sharpness, "not found",
                   f"no ArUco marker of dictionary {spec.dictionary} found",
                   "check --board-dictionary matches the printed board and that the board is evenly lit")
