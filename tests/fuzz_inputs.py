@@ -209,7 +209,8 @@ def _value_text(v: object) -> str | None:
 def scenario_cases(n: int, rng: np.random.Generator, bases: dict[str, dict]) -> list[Case]:
     """``n`` bad scenario files, mutations of ``bases`` drawn with ``rng``."""
     kinds = {"bad number": 30, "zero or negative": 12, "unknown name": 10, "bad name": 8, "scenario name": 4,
-             "bad path": 5, "unknown field": 5, "missing field": 3, "wrong table": 4, "file bytes": 6, "geometry": 13}
+             "bad path": 5, "unknown field": 5, "missing field": 3, "wrong table": 4, "file bytes": 6, "geometry": 13,
+             "--set": 6}
     names = list(bases)
     kind_names, weights = list(kinds), np.array(list(kinds.values()), float)
     cases: list[Case] = []
@@ -314,6 +315,11 @@ def _mutate(kind: str, base: str, data: dict, rng: np.random.Generator) -> Case 
         return Case(f"file: {how}", kind, ("<encoding>", "<syntax>", "fps", "description", "seed"), text)
     if kind == "geometry":
         return _geometry(data, rng)
+    if kind == "--set":  # the file is good; the command line's override is not
+        path = _pick(rng, [p for p, v in leaves.items() if isinstance(v, (int, float)) and not isinstance(v, bool)])
+        text, value = [("nan", math.nan), ("inf", math.inf), ("-1e300", -1e300), ("true", True), ('"x"', "x"),
+                       ("[1, 2]", None)][rng.integers(6)]
+        return Case(f"--set {path}={text}", kind, (path,), _toml(data), args=("--set", f"{path}={text}"), value=value)
     raise ValueError(kind)
 
 
@@ -403,8 +409,8 @@ def _synthetic_take(d: Path) -> tuple[list[Path], Path, Path]:
     return videos, cal_path, tmpl
 
 
-def _video(path: Path, n: int, size=(W, H), value: int = 0) -> None:
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, size)
+def _video(path: Path, n: int, size=(W, H), value: int = 0, fps: float = 30.0) -> None:
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
     for _ in range(n):
         vw.write(np.full((size[1], size[0], 3), value, np.uint8))
     vw.release()
@@ -446,6 +452,7 @@ def mocap_cases(n: int, rng: np.random.Generator) -> list[Case]:
         c("a video at half size", ("cam1.avi",), vid(1, size=(W // 2, H // 2))),
         c("a video at double size", ("cam2.avi",), vid(2, size=(2 * W, 2 * H))),
         c("videos of unequal length", ("cam0.avi",), vid(1, n=N_FRAMES + 3)),
+        c("a video at another frame rate", ("cam0.avi", "cam2.avi"), vid(2, fps=25.0)),
         c("a video that is text", ("cam1.avi",), _write("cam1.avi", b"not a video\n")),
         c("an empty video file", ("cam0.avi",), _write("cam0.avi", b"")),
         c("a missing video", ("cam2.avi",), lambda d: (d / "cam2.avi").unlink()),
@@ -608,7 +615,7 @@ def check_scenario_case(case: Case, root: Path, timeout_s: float = 30.0) -> Outc
     d.mkdir(parents=True)
     path = d / "scenario.toml"
     path.write_bytes(case.text)
-    args = ["run", str(path)] + (["--out", str(d / "out")] if case.use_out else [])
+    args = ["run", str(path), *case.args] + (["--out", str(d / "out")] if case.use_out else [])
     cwd = os.getcwd()
     t0 = time.perf_counter()
     accepted = hang = False
@@ -654,7 +661,7 @@ def check_mocap_case(case: Case, root: Path, timeout_s: float = 60.0) -> Outcome
     stderr = result.stderr if result is not None else ""
     names = tuple(f for f in case.fields) + ("--out", "cap")
     return _judge(case, result.exit_code if result else None, stderr, result.exception if result else None, written,
-                  names, time.perf_counter() - t0, False, hang)
+                  names, time.perf_counter() - t0, result is not None and result.exit_code == 0, hang)
 
 
 def check_good_mocap_take(root: Path) -> tuple[int, str]:
@@ -684,7 +691,7 @@ def check_in_subprocess(case: Case, root: Path, timeout_s: float = 120.0) -> Out
     else:
         path = d / "scenario.toml"
         path.write_bytes(case.text)
-        cmd = [sys.executable, "-c", "from simbench.cli.app import main; main()", "run", str(path)] + (["--out", str(d / "out")] if case.use_out else [])
+        cmd = [sys.executable, "-c", "from simbench.cli.app import main; main()", "run", str(path), *case.args] + (["--out", str(d / "out")] if case.use_out else [])
         names = (str(path),)
     before = {p for p in d.rglob("*")}
     t0 = time.perf_counter()
@@ -737,7 +744,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="simbench-fuzz-") as tmp:
         root = Path(tmp)
         code, text = check_good_mocap_take(root)
-        print(f"control: mocap markers on the unspoilt synthetic take: exit {code}")
+        print(f"control: mocap markers on the unspoilt synthetic take: exit {code}: {' '.join(text.split()).split('; wrote')[0]}")
         scen, moc, sub = run_fuzz(a.scenarios, a.mocap, a.seed, root, a.subprocess)
     print(report("simbench run, bad scenarios (in-process)", scen))
     print("  by kind: " + ", ".join(f"{k} {v}" for k, v in sorted(Counter(o.kind for o in scen.outcomes).items())))

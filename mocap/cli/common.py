@@ -91,7 +91,7 @@ def probe_video(path: Path) -> VideoProbe:
 
 
 def check_videos_against_calibration(paths: list[Path], probes: list[VideoProbe], calibration) -> None:
-    """Every video has its camera's calibrated size, and all have the same number of frames.
+    """Every video has its camera's calibrated size, and all have the same number of frames and rate.
 
     A video at another size than its calibration would be measured with the wrong camera
     model; videos of unequal length are not one synchronised take. Both are refused rather
@@ -105,6 +105,11 @@ def check_videos_against_calibration(paths: list[Path], probes: list[VideoProbe]
         listed = ", ".join(f"{k} {v}" for k, v in counts.items())
         raise InputFileError(paths[0], f"the videos differ in length ({listed} frames)",
                              "trim them to the same synchronised span before capture")
+    rates = {p.name: pr.fps for p, pr in zip(paths, probes) if pr.fps > 0}  # 0: the file states none (--fps then)
+    if rates and max(rates.values()) > min(rates.values()) * 1.001:
+        listed = ", ".join(f"{k} {v:g}" for k, v in rates.items())
+        raise InputFileError(paths[0], f"the videos state different frame rates ({listed} Hz)",
+                             "give videos of one synchronised take, recorded at one rate")
 
 
 OUTPUT_MARKER = ".mocap-output.json"
