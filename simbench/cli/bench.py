@@ -74,7 +74,7 @@ def bench_memory(
     duration: float = typer.Option(60.0, "--duration", help="length of the take (s), overrides the scenario's duration_s"),
     scenario: Path = typer.Option(Path("scenarios/quickstart.toml"), "--scenario", help="scenario TOML (default: the quickstart, 4 cameras)"),
     set_: list[str] = typer.Option([], "--set", help="override a field, e.g. --set rig.count=6"),
-    every: int = typer.Option(100, "--every", help="print a row every this many frames"),
+    every: int = typer.Option(100, "--every", min=1, help="print a row every this many frames"),
     out: Optional[Path] = typer.Option(None, "--out", help="keep the run's outputs here (default: a temporary folder, removed)"),
 ) -> None:
     """RSS against frames rendered for a long take run as `simbench run` runs it; peak RSS and the
@@ -86,8 +86,6 @@ def bench_memory(
     sc = load_scenario(scenario, overrides={**parse_overrides(set_), "duration_s": duration})
     if out is not None:
         replaceable_state(out)  # refuse a path that is not the bench's before anything renders
-    if every < 1:
-        raise typer.BadParameter(f"--every {every}: must be at least 1")
 
     def row(s) -> None:
         if s.frames % every == 0:
