@@ -41,7 +41,9 @@ def export_inputs(scenario: Path = typer.Argument(..., help="scenario TOML"),
 def scoreboard(suite: str = typer.Argument(..., help="suite name in the suites file, e.g. scoreboard"),
                suites_file: Path = typer.Option(Path("scenarios/suites.toml"), "--suites", help="suites file"),
                out: Path = typer.Option(None, "--out", help="report folder (default out/scoreboard/<suite>)"),
-               systems: list[str] = typer.Option([], "--system", help="only these adapters (default: every installed one)")) -> None:
+               systems: list[str] = typer.Option([], "--system", help="only these adapters (default: every installed one); 'project' alone: no adapter"),
+               seeds: int = typer.Option(1, "--seeds", min=1, max=100,
+                                         help="each scenario on N seeds; figures become means with 95 %% bootstrap CIs")) -> None:
     """The project's pipeline and every installed third-party adapter (scripts/setup_adapters.sh) on the same
     frames of each scenario of SUITE: one table, and a Markdown report with plots."""
     from simbench.sweeps.scoreboard import run_scoreboard, table_lines, write_report
@@ -50,20 +52,20 @@ def scoreboard(suite: str = typer.Argument(..., help="suite name in the suites f
     from simbench.pipelines.exchange.adapters import ADAPTERS, installed_adapters
     from simbench.sweeps.regression import load_suites
 
-    unknown = [s for s in systems if s not in ADAPTERS]
+    unknown = [s for s in systems if s not in ADAPTERS and s != "project"]
     if unknown:
-        raise SimbenchInputError(f"--system {unknown[0]!r}: adapters are {', '.join(ADAPTERS)}")
+        raise SimbenchInputError(f"--system {unknown[0]!r}: use an adapter ({', '.join(ADAPTERS)}) or 'project' (the project's rows only)")
     n = len(load_suites(suites_file).get(suite).scenarios)
     out = out if out is not None else Path("out") / "scoreboard" / suite
     replaceable_state(out)
-    missing = [a for a in ADAPTERS if a not in installed_adapters() and (not systems or a in systems)]
+    missing = [a for a in ADAPTERS if a not in installed_adapters() and (not systems or a in systems)]  # asked for, absent
     for a in missing:
         console.print(f"note: adapter {a} is not installed (scripts/setup_adapters.sh {a}); its rows are left out",
                       markup=False, highlight=False)
-    prog, advance = progress_bar(f"scoreboard {suite}", n)
+    prog, advance = progress_bar(f"scoreboard {suite}", n * seeds)
     with AtomicOutputDir(out, scenario=suite, kind="run") as tmp:
         with prog:
-            sb = run_scoreboard(suites_file, suite, tmp, systems or None, progress=advance)
+            sb = run_scoreboard(suites_file, suite, tmp, systems or None, progress=advance, seeds=seeds)
         sb.failures = [f.replace(str(tmp), str(out)) for f in sb.failures]  # name the final folder
         write_report(sb, tmp)
     print("\n".join(table_lines(sb)))

@@ -34,6 +34,7 @@ from matplotlib.figure import Figure
 
 from eval import marker_metrics
 from eval.calibration_metrics import compare_calibrations
+from eval.seed_stats import SeedSummary, bootstrap_summary
 from mocap.calibration_formats import load_calibration
 from mocap.triangulation import triangulate, triangulate_dlt
 from simbench.pipelines.exchange.adapters import ADAPTERS, AdapterError, adapter_version, installed_adapters, run_adapter
@@ -61,6 +62,7 @@ class ScoreRow:
     metrics: dict[str, float]
     errors_mm: np.ndarray | None = None  # per marker-frame 3D errors (for the plots)
     note: str = ""
+    seed: int = 0
 
 
 @dataclass
@@ -70,6 +72,21 @@ class Scoreboard:
     versions: dict[str, str] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
     frames: dict[str, int] = field(default_factory=dict)
+    seeds: int = 1
+
+    def summaries(self) -> list[tuple[ScoreRow, dict[str, SeedSummary]]]:
+        """One entry per (scenario, system, variant), first row's identity, and per metric the
+        seeds' mean with its 95 % bootstrap CI (:func:`eval.seed_stats.bootstrap_summary`, one
+        seeded generator per metric so the report is reproducible)."""
+        groups: dict[tuple[str, str, str], list[ScoreRow]] = {}
+        for r in self.rows:
+            groups.setdefault((r.scenario, r.system, r.variant), []).append(r)
+        out = []
+        for i, rows in enumerate(groups.values()):
+            keys = dict.fromkeys(k for r in rows for k in r.metrics)
+            out.append((rows[0], {k: bootstrap_summary([r.metrics.get(k, np.nan) for r in rows], rng=np.random.default_rng([i, j]))
+                                  for j, k in enumerate(keys)}))
+        return out
 
 
 def _errors_mm(est: np.ndarray, true: np.ndarray, visible: np.ndarray) -> np.ndarray:
@@ -150,19 +167,22 @@ def _adapter_rows(name: str, adapter: str, sc, stage, gt, detections, folder: Pa
 
 
 def run_scoreboard(suites_file: Path, suite: str, out: Path, systems: list[str] | None = None,
-                   progress=None) -> Scoreboard:
+                   progress=None, seeds: int = 1) -> Scoreboard:
     """Run every scenario of ``suite`` through the project and each installed adapter (module doc).
-    ``systems``: adapters to include (default: every installed one)."""
+    ``systems``: adapters to include (default: every installed one). ``seeds``: each scenario on
+    seeds ``seed .. seed + seeds - 1`` (every system on each seed's frames); the table then gives
+    each figure's mean over the seeds and its 95 % bootstrap confidence interval."""
     suites = load_suites(suites_file)
     runs, unrunnable = suites.resolve(suite)
-    sb = Scoreboard(suite, failures=[f"{n}: {e}" for n, e in unrunnable.items()])
+    sb = Scoreboard(suite, failures=[f"{n}: {e}" for n, e in unrunnable.items()], seeds=seeds)
     adapters = [a for a in installed_adapters() if systems is None or a in systems]
     sb.versions = {a: adapter_version(a) for a in ADAPTERS}
     out.mkdir(parents=True, exist_ok=True)
-    for spec in runs:
+    for spec, i in ((spec, i) for spec in runs for i in range(seeds)):
         name = str(spec.factors["scenario"])
-        sc = spec.scenario
-        folder = out / name
+        sc = spec.scenario.with_overrides({"seed": spec.scenario.seed + i}) if i else spec.scenario
+        folder = out / name / (f"seed-{sc.seed:04d}" if seeds > 1 else "")
+        first = len(sb.rows)
         res = run_scenario(sc, folder / "project_run")
         gt = res.sequence.ground_truth
         sb.frames[name] = gt.n_frames
@@ -178,6 +198,8 @@ def run_scoreboard(suites_file: Path, suite: str, out: Path, systems: list[str] 
                 sb.rows += _adapter_rows(name, adapter, sc, stage, gt, detections, folder, sb)
             except AdapterError as exc:
                 sb.failures.append(f"{name}: {exc}")
+        for r in sb.rows[first:]:
+            r.seed = sc.seed
         if progress is not None:
             progress(1)
     return sb
@@ -187,9 +209,19 @@ def _fmt(v, f: str) -> str:
     return "-" if v is None or not np.isfinite(v) else f.format(v)
 
 
+def _cell(summary: SeedSummary | None, f: str) -> str:
+    if summary is None or not np.isfinite(summary.mean):
+        return "-"
+    if summary.n_finite < 2:
+        return f.format(summary.mean)
+    return f"{f.format(summary.mean)} [{f.format(summary.ci_low)}, {f.format(summary.ci_high)}]"
+
+
 def table_lines(sb: Scoreboard, markdown: bool = False) -> list[str]:
+    """The table: one line per system and variant of each scenario; with several seeds each figure is
+    the seeds' mean and its 95 % bootstrap CI ``[low, high]``."""
     head = ["scenario", "system", "variant"] + [h for _, h, _ in COLUMNS]
-    body = [[r.scenario, r.system, r.variant] + [_fmt(r.metrics.get(k), f) for k, _, f in COLUMNS] for r in sb.rows]
+    body = [[r.scenario, r.system, r.variant] + [_cell(m.get(k), f) for k, _, f in COLUMNS] for r, m in sb.summaries()]
     if markdown:
         return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)] + ["| " + " | ".join(b) + " |" for b in body]
     widths = [max(len(x) for x in col) for col in zip(head, *body)]
@@ -198,7 +230,11 @@ def table_lines(sb: Scoreboard, markdown: bool = False) -> list[str]:
 
 
 def _plot_errors(sb: Scoreboard, scenario: str, path: Path) -> bool:
-    rows = [r for r in sb.rows if r.scenario == scenario and r.errors_mm is not None and r.errors_mm.size]
+    pooled: dict[tuple[str, str], list[np.ndarray]] = {}
+    for r in sb.rows:
+        if r.scenario == scenario and r.errors_mm is not None and r.errors_mm.size:
+            pooled.setdefault((r.system, r.variant), []).append(r.errors_mm)
+    rows = [ScoreRow(scenario, s, v, {}, np.concatenate(e)) for (s, v), e in pooled.items()]  # every seed's marker-frames
     if not rows:
         return False
     fig = Figure(figsize=(8.5, 4.8))
@@ -219,7 +255,8 @@ def _plot_errors(sb: Scoreboard, scenario: str, path: Path) -> bool:
 
 
 def _plot_calibration(sb: Scoreboard, path: Path) -> bool:
-    rows = [r for r in sb.rows if "calib.focal_error_pct" in r.metrics]
+    rows = [ScoreRow(r.scenario, r.system, r.variant, {k: v.mean for k, v in m.items()})
+            for r, m in sb.summaries() if "calib.focal_error_pct" in m]
     if not rows:
         return False
     keys = [(k, h) for k, h, _ in COLUMNS if k.startswith("calib.")]
@@ -244,9 +281,12 @@ def write_report(sb: Scoreboard, out: Path) -> Path:
              "exact ground truth. Adapters and the `project (labelled 2D)` rows get the bench's own blob centroids labelled "
              "by the exact projections; the `mocap pipeline` row labels unlabelled blobs itself.", "",
              *table_lines(sb, markdown=True), "",
+             *([f"Each figure: mean over {sb.seeds} seeds [95 % bootstrap CI of the mean] (eval.seed_stats.bootstrap_summary).", ""]
+               if sb.seeds > 1 else []),
              "Versions: " + ", ".join(f"{k} {v}" for k, v in sb.versions.items()), ""]
     lines += ["## Settings", ""] + [f"- **{a.name}**: {a.settings}" for a in ADAPTERS.values()] + [""]
-    notes = [f"- {r.scenario} / {r.system} / {r.variant}: {r.note}" for r in sb.rows if r.note]
+    notes = list(dict.fromkeys(f"- {r.scenario} / {r.system} / {r.variant}" + (f" (seed {r.seed})" if sb.seeds > 1 else "")
+                               + f": {r.note}" for r in sb.rows if r.note))
     if notes:
         lines += ["## Notes", ""] + notes + [""]
     if sb.failures:
@@ -259,8 +299,12 @@ def write_report(sb: Scoreboard, out: Path) -> Path:
     if _plot_calibration(sb, plots / "calibration.png"):
         lines += ["![calibration](plots/calibration.png)", ""]
     (out / "scoreboard.md").write_text("\n".join(lines) + "\n")
-    data = {"suite": sb.suite, "versions": sb.versions, "frames": sb.frames, "failures": sb.failures,
-            "rows": [{"scenario": r.scenario, "system": r.system, "variant": r.variant, "note": r.note,
-                      "metrics": {k: (None if not np.isfinite(v) else float(v)) for k, v in r.metrics.items()}} for r in sb.rows]}
+    fin = lambda v: None if v is None or not np.isfinite(v) else float(v)  # noqa: E731
+    data = {"suite": sb.suite, "seeds": sb.seeds, "versions": sb.versions, "frames": sb.frames, "failures": sb.failures,
+            "rows": [{"scenario": r.scenario, "system": r.system, "variant": r.variant, "seed": r.seed, "note": r.note,
+                      "metrics": {k: fin(v) for k, v in r.metrics.items()}} for r in sb.rows],
+            "summary": [{"scenario": r.scenario, "system": r.system, "variant": r.variant,
+                         "metrics": {k: {"mean": fin(v.mean), "ci_low": fin(v.ci_low), "ci_high": fin(v.ci_high), "n": v.n_finite}
+                                     for k, v in m.items()}} for r, m in sb.summaries()]}
     (out / "scoreboard.json").write_text(json.dumps(data, indent=1) + "\n")
     return out / "scoreboard.md"
