@@ -76,7 +76,7 @@ def main() -> None:
     a.output.mkdir(parents=True, exist_ok=True)
     ys = xyz[..., [0, 2, 1]] * [1.0, 1.0, -1.0] * 1000.0  # world Z up, m -> OpenSim Y up, mm
     rate = man["fps"]
-    lines = [f"PathFileType\t4\t(X/Y/Z)\tmarkers.trc",
+    lines = ["PathFileType\t4\t(X/Y/Z)\tmarkers.trc",
              "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
              f"{rate}\t{rate}\t{F}\t{len(markers)}\tmm\t{rate}\t1\t{F}",
              "Frame#\tTime\t" + "\t\t\t".join(markers),

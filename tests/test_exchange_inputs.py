@@ -11,7 +11,6 @@ from mocap.calibration_formats import load_calibration
 from mocap.labelling import load_template
 from simbench.pipelines.exchange.inputs import LABEL_GATE_PX, export_inputs, read_detections_csv
 from simbench.scenario import load_scenario
-from simbench.stage.ground_truth import load_ground_truth
 
 
 @pytest.mark.parametrize("fmt", ["pose2sim"])
@@ -42,3 +41,21 @@ def test_export_inputs_quickstart(tmp_path, fmt):
     assert err.max() < LABEL_GATE_PX and np.median(err) < 0.3
     tpl = load_template(d / "label_template.csv")
     assert list(tpl.names) == man["markers"]
+
+
+def test_export_inputs_of_a_calibration_scene_has_its_board_pictures(tmp_path):
+    """A [calibration_scene]: the board's description (inner corners and squares), its pictures per
+    camera (PNG) and one video per camera, for systems that calibrate themselves; the anipose file."""
+    sc = load_scenario("scenarios/calibration.toml", {"calibration_scene.n_views": 3, "calibration_scene.wand": False,
+                                                      "sensor.antialias": 1})
+    export_inputs(sc, tmp_path / "in", "anipose")
+    d = tmp_path / "in"
+    man = json.loads((d / "inputs.json").read_text())
+    assert man["markers"] == [] and man["detections"] is None
+    board = man["calibration_board"]
+    assert board["inner_corners"] == [9, 6] and board["squares"] == [10, 7] and board["square_m"] == 0.08
+    assert board["views"] == 4  # 3 in the air + the floor view
+    for cam in man["cameras"]:
+        assert len(list((d / "calibration_board" / cam).glob("view_*.png"))) == 4
+        assert (d / "calibration_board" / f"{cam}.mp4").stat().st_size > 1000
+    assert [c.name for c in load_calibration(d / "calibration" / "calibration.toml")] == man["cameras"]
