@@ -574,9 +574,9 @@ class Scenario(FrozenModel):
         names = [c.name for c in self.cameras]
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must be unique, got {names}")
-        if self.n_frames < 2:
+        if self.n_frames < 1:
             raise field_error("duration_s", self.duration_s, f"duration_s * fps = {self.duration_s} * {self.fps} gives "
-                                                            f"{self.n_frames} frame(s); a take needs 2 frames or more")
+                                                            f"no frame; a take needs 1 frame to render, 2 to run")
         self._cameras_see_the_subject()
         if self.sensor.exposure_ms > 1000.0 / self.fps + 1e-9:
             raise ValueError(f"sensor.exposure_ms = {self.sensor.exposure_ms} exceeds the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
@@ -633,7 +633,7 @@ class Scenario(FrozenModel):
         """What a run (render, pipelines, scores) needs beyond a valid scenario, which may also
         just be rendered (one camera is a valid render): a :class:`ScenarioError` naming
         ``source`` before anything renders. The marker pipeline and the calibration session
-        triangulate, so they need two cameras."""
+        triangulate, so they need two cameras; a take of one frame has no motion to track."""
         n = len(self.cameras) if self.cameras else None if getattr(self.rig, "from_calibration", None) else self.rig.count
         needs = ("the marker pipeline" if self.subject.markers != "none" or self.motion.c3d or self.motion.trc
                  else "the calibration session" if self.calibration_scene is not None else None)
@@ -641,6 +641,9 @@ class Scenario(FrozenModel):
             field = "cameras" if self.cameras else "rig.count"
             raise ScenarioError(source, field, [c.name for c in self.cameras] if self.cameras else 1,
                                 f"{needs} triangulates, so it needs two cameras or more")
+        if self.n_frames < 2:
+            raise ScenarioError(source, "duration_s", self.duration_s, f"duration_s * fps = {self.duration_s} * {self.fps} "
+                                f"gives {self.n_frames} frame; a run needs 2 frames or more")
 
     @property
     def n_frames(self) -> int:

@@ -100,13 +100,14 @@ def test_non_utf8_scenario_is_one_line(tmp_path) -> None:
 @pytest.mark.skipif(ctypes.util.find_library("OSMesa") is not None, reason="libOSMesa is installed here")
 def test_osmesa_requested_without_libosmesa_is_one_line(tmp_path) -> None:
     r = subprocess.run([sys.executable, "-c", "from simbench.cli.app import main; main()", "info", str(SHIPPED[0])],
-                       capture_output=True, text=True, timeout=120, env={**os.environ, "MUJOCO_GL": "osmesa"}, cwd=tmp_path)
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                       env={**{k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}, "MUJOCO_GL": "osmesa"})
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "MUJOCO_GL=osmesa but libOSMesa.so is not installed" in lines[0], r.stderr
 
 
-def test_one_camera_is_a_valid_render_but_not_a_run(tmp_path) -> None:
+def test_one_camera_or_one_frame_is_a_valid_render_but_not_a_run(tmp_path) -> None:
     from simbench.errors import ScenarioError
     from simbench.scenario import load_scenario
 
@@ -114,12 +115,15 @@ def test_one_camera_is_a_valid_render_but_not_a_run(tmp_path) -> None:
     with pytest.raises(ScenarioError, match="field 'rig.count': got 1; the marker pipeline triangulates"):
         sc.check_runnable("quickstart.toml")
     load_scenario(fz.SCENARIOS / "quickstart.toml", overrides={"rig.count": 1, "subject.markers": "none"}).check_runnable("x")
+    one_frame = load_scenario(fz.SCENARIOS / "quickstart.toml", overrides={"duration_s": 1 / 30})  # renders one frame
+    with pytest.raises(ScenarioError, match="field 'duration_s': got 0.0333.*gives 1 frame; a run needs 2 frames"):
+        one_frame.check_runnable("quickstart.toml")
 
 
 @pytest.mark.parametrize("overrides, field, words", [
     ({"rig.radius_m": 0.35}, "rig", "inside the body"),
     ({"rig.look_at": [40.0, 0.0, 1.0]}, "rig", "does not see the subject"),
-    ({"duration_s": 0.04}, "duration_s", "gives 1 frame(s)"),
+    ({"duration_s": 0.01}, "duration_s", "gives no frame"),
     ({"rig.width": 5000}, "rig.width", "less than or equal to 4096"),
     ({"fps": True}, "fps", "expected a number, got bool"),
     ({"lighting.scale": 1e300}, "lighting.scale", "less than or equal to 1000"),

@@ -47,10 +47,10 @@ def check_requested_platform() -> None:
     """If ``PYOPENGL_PLATFORM`` or ``MUJOCO_GL`` names a platform, its native library must be
     installed: a :class:`GLUnavailableError` now, instead of PyOpenGL's ``AttributeError``
     when MuJoCo is first imported (every ``simbench`` command imports it)."""
-    platform = os.environ.get("PYOPENGL_PLATFORM") or os.environ.get("MUJOCO_GL")
-    if platform in _LIBRARIES and ctypes.util.find_library(_LIBRARIES[platform]) is None:
-        variable = "PYOPENGL_PLATFORM" if os.environ.get("PYOPENGL_PLATFORM") else "MUJOCO_GL"
-        raise GLUnavailableError(f"{variable}={platform} but lib{_LIBRARIES[platform]}.so is not installed. {_FIX}")
+    for variable in ("MUJOCO_GL", "PYOPENGL_PLATFORM"):  # MuJoCo and PyOpenGL each load the one they are told
+        platform = os.environ.get(variable)
+        if platform in _LIBRARIES and ctypes.util.find_library(_LIBRARIES[platform]) is None:
+            raise GLUnavailableError(f"{variable}={platform} but lib{_LIBRARIES[platform]}.so is not installed. {_FIX}")
 
 
 class GLContext:
