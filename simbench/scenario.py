@@ -465,7 +465,7 @@ class PipelineConfig(FrozenModel):
     format: Literal["opencv", "anipose", "pose2sim", "easymocap"] = "opencv"
     result: str = Field("markers.trc", description="the 3D result the command writes in {output}: .c3d, .trc or .csv")
     trc_axes: Literal["opensim", "pose2sim", "world", "auto"] = Field("opensim", description="axes of a .trc result")
-    timeout_s: float = Field(600.0, gt=0.0, le=86400.0)
+    timeout_s: Real = Field(600.0, gt=0.0, le=86400.0)
 
     @model_validator(mode="after")
     def _command_given(self):

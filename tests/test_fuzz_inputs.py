@@ -136,3 +136,40 @@ def test_schema_refusals_name_the_field(overrides, field, words) -> None:
     with pytest.raises(ScenarioError) as err:
         load_scenario(fz.SCENARIOS / "quickstart.toml", overrides=overrides)
     assert err.value.field == field and words in str(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("line, field", [
+    ('samples = true', "samples"),
+    ('seed = nan', "seed"),
+    ('factors = [{ field = "sensor.gain", range = [nan, 2.0] }]', "factors.0.range.0"),
+    ('factors = [{ field = "sensor.gain", range = [1.0, inf] }]', "factors.0.range.1"),
+    ('factors = [{ field = "sensor.gain", range = [1.0, 2.0], log = 1 }]', "factors.0.log"),
+])
+def test_sweep_files_refuse_bad_numbers(tmp_path, line: str, field: str) -> None:
+    """The sweep schema uses the same finite, bounded, non-boolean numbers as the scenario schema."""
+    from simbench.errors import ScenarioError
+    from simbench.sweeps.sweep import load_sweep
+
+    text = f'name = "s"\nscenario = "{fz.SCENARIOS / "quickstart.toml"}"\nmode = "random"\n'
+    text += line + "\n" if line.startswith("factors") else f'{line}\nfactors = [{{ field = "sensor.gain", range = [1.0, 2.0] }}]\n'
+    if not line.startswith("samples"):
+        text += "samples = 4\n"
+    path = tmp_path / "sweep.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        load_sweep(path)
+    assert err.value.field == field, str(err.value)
+
+
+@pytest.mark.parametrize("tolerance, field", [("rel = inf", "rel"), ("abs = nan", "abs"), ("abs = true", "abs")])
+def test_suite_tolerances_are_finite_numbers(tmp_path, tolerance: str, field: str) -> None:
+    """A tolerance of inf would make a check that cannot fail."""
+    from simbench.errors import ScenarioError
+    from simbench.sweeps.regression import load_suites
+
+    path = tmp_path / "suites.toml"
+    path.write_text(f'[suites.ci]\nscenarios = [{{ name = "q", file = "{fz.SCENARIOS / "quickstart.toml"}" }}]\n'
+                    f'[suites.ci.tolerances."markers.rmse_mm"]\nworse = "higher"\n{tolerance}\n')
+    with pytest.raises(ScenarioError) as err:
+        load_suites(path)
+    assert err.value.field.endswith(field), str(err.value)

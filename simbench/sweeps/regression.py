@@ -47,7 +47,7 @@ from rich.table import Table
 from eval.seed_stats import holm, shift_test
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
-from simbench.scenario import FrozenModel, load_scenario, read_toml_file, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, Int, Real, load_scenario, read_toml_file, validation_error_to_scenario_error
 from simbench.sweeps.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
 WORSE = ("higher", "lower", "either")
@@ -64,8 +64,8 @@ EXIT_PASS, EXIT_REGRESSION, EXIT_COULD_NOT_RUN = 0, 1, 3
 
 class Tolerance(FrozenModel):
     worse: Literal["higher", "lower", "either"] = Field(description="direction that counts as a regression")
-    abs: float = Field(0.0, ge=0.0, description="allowed absolute change")
-    rel: float = Field(0.0, ge=0.0, description="allowed change as a fraction of |baseline|")
+    abs: Real = Field(0.0, ge=0.0, description="allowed absolute change")
+    rel: Real = Field(0.0, ge=0.0, description="allowed change as a fraction of |baseline|")
 
     def allowed(self, baseline: float) -> float:
         return max(self.abs, self.rel * abs(baseline))
@@ -98,10 +98,10 @@ class Suite(FrozenModel):
     set: dict[str, Any] = Field(default_factory=dict)
     scenarios: list[SuiteScenario] = Field(min_length=1)
     tolerances: dict[str, Tolerance] = Field(default_factory=dict)
-    seeds: int = Field(1, ge=1, le=1000, description="seeds `simbench check` runs per scenario (scenario seed + i)")
-    baseline_seeds: int | None = Field(None, ge=1, le=10000, description="seeds per scenario in the baseline "
+    seeds: Int = Field(1, ge=1, le=1000, description="seeds `simbench check` runs per scenario (scenario seed + i)")
+    baseline_seeds: Int | None = Field(None, ge=1, le=10000, description="seeds per scenario in the baseline "
                                        "(scenario seed + 1000 + j; default 4 x seeds)")
-    alpha: float = Field(0.01, gt=0.0, lt=0.5, description="false-alarm rate of a whole check (Holm over every tested "
+    alpha: Real = Field(0.01, gt=0.0, lt=0.5, description="false-alarm rate of a whole check (Holm over every tested "
                          "metric of every scenario)")
 
     @property

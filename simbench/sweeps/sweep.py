@@ -66,13 +66,13 @@ from typing import Any, Callable, Iterator, Literal
 import duckdb
 import numpy as np
 import pyarrow as pa
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import Field, StrictBool, ValidationError, field_validator, model_validator
 
 from eval.marker_metrics import per_marker_error_mm
 from simbench import interrupts
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, ResultsDB, RunClaims, RunRecord
-from simbench.scenario import FrozenModel, Scenario, load_scenario, read_toml_file, validation_error_to_scenario_error
+from simbench.scenario import FrozenModel, Int, Real, Scenario, load_scenario, read_toml_file, validation_error_to_scenario_error
 
 VERSION_PACKAGES = ("simbench", "numpy", "scipy", "mujoco", "opencv-python-headless", "pydantic", "filterpy",
                     "pin", "pyrender2", "PyOpenGL", "duckdb", "dask", "distributed")
@@ -99,9 +99,9 @@ class Factor(FrozenModel):
     values: list[Any] | None = Field(None, min_length=1)
     labels: list[str] | None = Field(None, description="display names of `values` (e.g. for props lists)")
     levels: dict[str, dict[str, Any]] | None = Field(None, min_length=1, description="level name -> {dotted field: value}")
-    range: tuple[float, float] | None = Field(None, description="[low, high] sampled uniformly (random mode)")
-    log: bool = Field(False, description="sample `range` log-uniformly")
-    integer: bool = Field(False, description="sample `range` as integers (inclusive)")
+    range: tuple[Real, Real] | None = Field(None, description="[low, high] sampled uniformly (random mode)")
+    log: StrictBool = Field(False, description="sample `range` log-uniformly")
+    integer: StrictBool = Field(False, description="sample `range` as integers (inclusive)")
 
     @model_validator(mode="after")
     def _one_kind(self):
@@ -163,8 +163,8 @@ class SweepSpec(FrozenModel):
     description: str = ""
     scenario: str = Field(description="base scenario TOML, relative to the sweep file")
     mode: Literal["grid", "random"] = "grid"
-    samples: int | None = Field(None, ge=1, le=100000, description="number of runs in random mode")
-    seed: int = Field(0, ge=0, description="seed of the random sample (not the scenarios' seed)")
+    samples: Int | None = Field(None, ge=1, le=100000, description="number of runs in random mode")
+    seed: Int = Field(0, ge=0, le=2**32 - 1, description="seed of the random sample (not the scenarios' seed)")
     set: dict[str, Any] = Field(default_factory=dict, description="overrides applied to every run")
     factors: list[Factor] = Field(min_length=1)
 
