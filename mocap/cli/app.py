@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 from pathlib import Path
 from typing import Optional
 
@@ -19,7 +20,7 @@ import typer
 from mocap.calibration import Calibration
 from mocap.cli import shirt as shirt_commands
 from mocap.cli.common import atomic_output_dir, check_videos_against_calibration, console, order_videos_by_camera, probe_video, user_errors
-from mocap.errors import InputFileError
+from mocap.errors import InputFileError, MocapInputError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Optical motion capture from webcam videos.")
 
@@ -42,7 +43,6 @@ def markers(
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, capture_from_detections, export_capture
 
-    from mocap.errors import MocapInputError
     from mocap.trackers import get_tracker
 
     cal = Calibration.load(calibration)
@@ -59,6 +59,9 @@ def markers(
         raise InputFileError(Path("--tracker"), f"value {tracker!r}", str(exc)) from None
     probes = [probe_video(p) for p in paths]
     check_videos_against_calibration(paths, probes, cal)
+    if probes[0].frames < 2:
+        raise InputFileError(paths[0], f"holds {probes[0].frames} frame", "a capture needs 2 frames or more (its markers "
+                             "are tracked from frame to frame)")
     if fps is None:
         fps = probes[0].fps
         if not (np.isfinite(fps) and fps > 0):
@@ -96,13 +99,22 @@ def markers(
 
 @contextlib.contextmanager
 def _output_errors(out_dir: Path):
-    """A write that fails (a full disk, a permission) as one line naming ``--out``; the atomic
-    output folder has already removed what was written."""
+    """Errors while the output is being made, as one line naming ``--out`` and never the
+    temporary folder the user does not see (``.NAME.partial-*``, already removed by
+    :func:`atomic_output_dir`): a write that fails (a full disk, a permission), or an input
+    error raised by an export."""
+    partial = re.compile(rf"\.{re.escape(out_dir.name)}\.partial-[A-Za-z0-9_]+")
+
+    def public(text: str) -> str:
+        return partial.sub(out_dir.name, text)
+
     try:
         yield
     except OSError as exc:
-        raise InputFileError(out_dir, f"--out could not be written ({exc.strerror or exc}: {exc.filename or ''})",
+        raise InputFileError(out_dir, f"--out could not be written ({exc.strerror or exc}: {public(str(exc.filename or ''))})",
                              "free some space or choose another --out; nothing was written there") from None
+    except MocapInputError as exc:
+        raise MocapInputError(public(str(exc))) from None
 
 
 @app.command()
