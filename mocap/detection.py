@@ -112,6 +112,10 @@ class DetectionParams:
         14 mm marker 4-5 m from a 640x480 camera is 1-2 pixels across; noise that crosses
         the threshold barely does (on bvh_walk with 4 cameras the true 1-2 pixel blobs peak
         at 2.4x the threshold or more in 95 % of cases, median 4.2x). 0 disables.
+    small_area_fraction : float
+        ``"ir"``: such a blob must also be at least this fraction of the median area of the
+        image's blobs of ``min_area_px`` or more (where markers are 15-20 px, a 1-2 px blob is
+        the sliver of a marker hidden behind the body, not a distant marker).
     max_area_px : int
         Largest accepted blob (thresholded pixels).
     min_fill_ratio : float or None
@@ -153,6 +157,7 @@ class DetectionParams:
     background_cells: int = 5
     min_area_px: int | None = None
     small_peak_factor: float = 2.0
+    small_area_fraction: float = 0.2
     max_area_px: int = 2000
     min_fill_ratio: float | None = None
     max_elongation: float | None = None
@@ -188,6 +193,7 @@ class DetectionParams:
         need(self.dilate_px >= 0, "dilate_px", "must be >= 0")
         need(0 <= self.peak_fraction < 1, "peak_fraction", "must be in [0, 1)")
         need(self.small_peak_factor >= 0, "small_peak_factor", "must be >= 0 (0: no blob under min_area_px)")
+        need(0 <= self.small_area_fraction <= 1, "small_area_fraction", "must be in [0, 1]")
         need(self.ring_contrast >= 0, "ring_contrast", "must be >= 0 grey levels")
         need(0 < self.shading_weight <= 1, "shading_weight", "must be in (0, 1]")
         need(self.background_threshold >= 0, "background_threshold", "must be >= 0")
@@ -361,10 +367,15 @@ def _detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
         return Detections.empty()
     n = b.n
     small = b.keep & (b.area < min_area)
-    if small.any():  # tiny blobs only when clearly brighter than the threshold
+    if small.any():
+        # Tiny blobs only when clearly brighter than the threshold, and only where the
+        # image's markers are small anyway: beside markers of 15-20 px a blob of one or two
+        # is a sliver of a hidden marker, its centroid off by a pixel or more.
         peak = np.zeros(n)
         np.maximum.at(peak, b.lab, signal[b.py, b.px].astype(np.float64))
-        b.keep &= ~small | (peak >= params.small_peak_factor * thr)
+        large = b.keep & ~small
+        typical = float(np.median(b.area[large])) if large.any() else 0.0
+        b.keep &= ~small | ((peak >= params.small_peak_factor * thr) & (b.area >= params.small_area_fraction * typical))
         if not b.keep.any():
             return Detections.empty()
     # Pixels of the blobs grown by dilate_px (their labels by max-dilation of the label
@@ -440,10 +451,15 @@ def _detect_visible(img: np.ndarray, gray: np.ndarray, params: DetectionParams, 
         return Detections.empty()
     n = b.n
     small = b.keep & (b.area < min_area)
-    if small.any():  # tiny blobs only when clearly brighter than the threshold
+    if small.any():
+        # Tiny blobs only when clearly brighter than the threshold, and only where the
+        # image's markers are small anyway: beside markers of 15-20 px a blob of one or two
+        # is a sliver of a hidden marker, its centroid off by a pixel or more.
         peak = np.zeros(n)
         np.maximum.at(peak, b.lab, signal[b.py, b.px].astype(np.float64))
-        b.keep &= ~small | (peak >= params.small_peak_factor * thr)
+        large = b.keep & ~small
+        typical = float(np.median(b.area[large])) if large.any() else 0.0
+        b.keep &= ~small | ((peak >= params.small_peak_factor * thr) & (b.area >= params.small_area_fraction * typical))
         if not b.keep.any():
             return Detections.empty()
     # Ring test: peak of the smoothed image over the upper quartile of 16 samples on a
