@@ -1,5 +1,6 @@
-"""`simbench check` end to end: the ci suite passes on the committed baseline; a scenario made
-worse (a longer, more blurred shutter on the fast zigzag) fails with a readable table and JUnit.
+"""`simbench check` end to end: the ci suite (8 seeds per scenario against the baseline's 32) passes on
+the committed baseline; a scenario made worse (a longer, more blurred shutter on the fast zigzag) fails
+with a readable table (its one-sided, Holm-corrected p-values) and JUnit.
 
 The committed baseline must match the committed pipeline: a change that moves the ci metrics
 comes with `simbench baseline update --suite ci` (that is the gate doing its job)."""
@@ -21,12 +22,14 @@ def test_ci_suite_passes_on_the_committed_baseline(tmp_path):
     r = _check(tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "PASS suite ci" in r.stdout and "0 regressed" in r.stdout
+    assert "3 scenarios (8 seeds each against 32 baseline seeds)" in r.stdout
     suite = ET.parse(tmp_path / "junit.xml").getroot().find("testsuite")
     assert suite.get("failures") == "0" and suite.get("errors") == "0" and int(suite.get("tests")) >= 3 * 8
 
 
 def test_check_fails_with_a_table_when_a_scenario_gets_worse(tmp_path):
-    r = _check(tmp_path, "--only", "blur_zigzag", "--set", "sensor.exposure_ms=33")
+    # 4 seeds against the baseline's 32: the smallest one-sided p is 1/C(36, 4) = 1.7e-5, far below alpha / 9 metrics
+    r = _check(tmp_path, "--only", "blur_zigzag", "--set", "sensor.exposure_ms=33", "--seeds", "4")
     assert r.returncode == 1, r.stdout + r.stderr
     out = r.stdout
     assert "FAIL suite ci" in out
@@ -37,8 +40,9 @@ def test_check_fails_with_a_table_when_a_scenario_gets_worse(tmp_path):
     markers = {m for m in flagged if m.startswith("markers.")}
     assert markers, out
     for m in markers:
-        baseline, current, change, tolerance = (flagged[m][i].strip() for i in (3, 4, 5, 6))
+        baseline, current, change, tolerance, p = (flagged[m][i].strip() for i in (3, 4, 5, 6, 7))
         assert float(baseline) != float(current) and change and " worse, ±" in tolerance
+        assert float(p) < 0.01  # the one-sided test, Holm-corrected over the check, at the suite's alpha
     assert "note: blur_zigzag: scenario differs from the baseline's" in out
     root = ET.parse(tmp_path / "junit.xml").getroot()
     failed = {tc.get("name") for tc in root.iter("testcase") if tc.find("failure") is not None}

@@ -520,8 +520,8 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
     scen = sorted({c.scenario for c in checks})
     counts = {s: sum(c.status == s for c in checks) for s in (REGRESSED, MISSING, ERROR, IMPROVED, NEW, OK)}
     if shown:
-        n_b = max((c.n_baseline for c in checks), default=1)
-        n_c = max((c.n_current for c in checks), default=1)
+        n_b = max((c.n_baseline for c in shown), default=1)
+        n_c = max((c.n_current for c in shown), default=1)
         how = (f"; medians of {n_c} seeds against {n_b} baseline seeds; regressed: one-sided Mann-Whitney U, Holm-adjusted "
                f"p below alpha and a change beyond the tolerance" if n_b > 1 and n_c > 1 else "")
         t = Table(title=escape(f"simbench check --suite {suite} against {baseline}{how}"), title_justify="left")
@@ -553,7 +553,10 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
     n_fail = counts[REGRESSED] + counts[MISSING] + counts[ERROR]
     verdict = "[bold red]FAIL[/]" if n_fail else "[bold green]PASS[/]"
     took = f" in {wall_s:.0f} s" if wall_s is not None else ""
-    console.print(f"{verdict} suite {escape(suite)}: {len(checks)} metrics of {len(scen)} scenarios{took}: "
+    n_b = max((c.n_baseline for c in checks), default=1)
+    n_c = max((c.n_current for c in checks), default=1)
+    ens = f" ({n_c} seeds each against {n_b} baseline seeds)" if n_c > 1 or n_b > 1 else ""
+    console.print(f"{verdict} suite {escape(suite)}: {len(checks)} metrics of {len(scen)} scenarios{ens}{took}: "
                   f"{counts[REGRESSED]} regressed, {counts[MISSING]} missing, {counts[ERROR]} errors, "
                   f"{counts[IMPROVED]} improved, {counts[NEW]} new, {counts[OK]} within tolerance"
                   + (f"; {len(could_not_run(checks))} scenarios could not run" if could_not_run(checks) else ""),
