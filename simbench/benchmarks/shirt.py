@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import faiss
@@ -51,7 +52,9 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     session = start_session(bench, seq.frames, gt)
     results: dict[str, float] = {}
     per_method = {}
-    for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline())):
+    # reference in the same run: the full method without issue 18's lock-on and arm search
+    plain = replace(ShirtPipelineParams(), arm_search=False, lock_on_yaws=0)
+    for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline()), ("full_no_arm_search", plain)):
         run = track_sequence(session.tracker(p), seq.frames)
         per_method[name] = run.timings_ms[3:]
     full = per_method["full"]
@@ -68,6 +71,11 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     results.update({"ms.total_p50": float(p50), "ms.total_p95": float(p95), "ms.total_max": float(worst)})
     log.info(f"{'  per frame':<22}{'median':>10}{p50:>8.2f}   95th percentile {p95:.2f}   max {worst:.2f}")
     log.info(f"{'total (baseline)':<22}{results['ms.total_baseline']:>22.2f}")
+    plain_frames = per_method["full_no_arm_search"].sum(axis=1)
+    results["ms.total_no_arm_search"] = float(plain_frames.mean())
+    results["ms.total_no_arm_search_max"] = float(plain_frames.max())
+    log.info(f"{'total (full, no arm search)':<22}{results['ms.total_no_arm_search']:>16.2f}   max {results['ms.total_no_arm_search_max']:.2f}"
+             "   (reference: the full method without the per-frame arm search and first-frame headings)")
     # reference: histogram search without the integral histogram, same frames and masks
     bg = BackgroundModel()
     bg.learn_empty(session.empty[0])
