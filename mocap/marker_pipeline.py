@@ -28,6 +28,7 @@ from mocap.skeleton_labelling import SkeletonMarkerModel
 from mocap.reassociation import ReassociationParams, reassociate
 from mocap.reconstruction import ReconstructionParams, reconstruct
 from mocap.swap_repair import SwapRepairParams, find_jumps, repair_swaps
+from mocap.synchronisation import ClockSync, SyncParams, estimate_sync, resample_detections
 from mocap.tracking import track_cameras
 from mocap.types import Detections, Tracks2D, Trajectories
 
@@ -228,6 +229,43 @@ def capture_from_detections(
     reassoc_stats["jump_samples_removed"] = sum(1 for e in swaps if e[0] == "jump")
     tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
     return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
+
+
+def capture_unsynchronised(
+    detections: list[list[Detections]],
+    timestamps: list[np.ndarray],
+    calibration: Calibration,
+    template: LabelTemplate,
+    params: MarkerPipelineParams | None = None,
+    rng: np.random.Generator | None = None,
+    subject=None,
+    detection_ms: float = 0.0,
+    marker_model: ClusterMarkerModel | None = None,
+    reference: int = 0,
+    sync_params: SyncParams | None = None,
+) -> tuple[MarkerCapture, ClockSync]:
+    """The pipeline on cameras with their own clocks (webcams without hardware sync).
+
+    Each camera's offset and drift relative to camera ``reference`` are estimated from the
+    markers' motion (:func:`mocap.synchronisation.estimate_sync`); every camera's blobs are
+    interpolated to the reference camera's frame instants
+    (:func:`mocap.synchronisation.resample_detections`), and :func:`capture_from_detections`
+    runs on them with the reference camera's timestamps as the frame times.
+
+    Parameters
+    ----------
+    detections : C lists of F_c Detections (each camera its own frame count)
+    timestamps : C arrays ``(F_c,)`` s from each camera's own clock, strictly increasing
+    """
+    t0 = time.perf_counter()
+    sync = estimate_sync(detections, timestamps, calibration, reference, sync_params)
+    resampled = resample_detections(detections, timestamps, sync,
+                                    (sync_params or SyncParams()).link_gate_px)
+    sync_ms = (time.perf_counter() - t0) * 1e3
+    capture = capture_from_detections(resampled, calibration, template, np.asarray(timestamps[reference], float), params,
+                                      rng, subject, detection_ms, marker_model)
+    capture.timings_ms["synchronisation"] = sync_ms
+    return capture, sync
 
 
 def _label_with_model(detections: list[list[Detections]], calibration: Calibration, template: LabelTemplate,

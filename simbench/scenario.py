@@ -222,6 +222,28 @@ class MotionConfig(FrozenModel):
         return data
 
 
+class ClockConfig(FrozenModel):
+    """``[sensor.clock]``: each camera on its own clock (seeded draws per camera, from the scenario's seed).
+
+    Camera ``c``'s clock reading ``s`` happens at true time ``offset_c + (1 + ppm_c * 1e-6) * s``;
+    tick ``i`` of the clock exposes at ``s = i / fps + jitter`` (mid-exposure) and the camera
+    stamps the frame with that reading. A tick's frame may be dropped (not delivered) or be a
+    duplicate (the previous frame's image again, under the tick's timestamp).
+    """
+
+    offset_ms_max: Real = Field(0.0, ge=0.0, le=10_000.0, description="start offsets drawn uniformly in +-this (ms)")
+    drift_ppm_max: Real = Field(0.0, ge=0.0, le=10_000.0, description="clock-rate errors drawn uniformly in +-this (ppm)")
+    jitter_ms: Real = Field(0.0, ge=0.0, le=10.0, description="frame-interval jitter, RMS (ms); clipped at 3 RMS")
+    drop_probability: Real = Field(0.0, ge=0.0, le=0.5, description="chance that a tick's frame is dropped")
+    duplicate_probability: Real = Field(0.0, ge=0.0, le=0.5, description="chance that a tick repeats the previous frame")
+
+    @property
+    def synchronised(self) -> bool:
+        """True when every field is zero: the cameras expose together, as without ``[sensor.clock]``."""
+        return not (self.offset_ms_max or self.drift_ppm_max or self.jitter_ms or self.drop_probability
+                    or self.duplicate_probability)
+
+
 class SensorConfig(FrozenModel):
     """The webcam's sensor and image processing (shared by all cameras)."""
 
@@ -243,6 +265,16 @@ class SensorConfig(FrozenModel):
     psf_sigma_px: Real = Field(0.4, ge=0.0, le=5.0, description="Gaussian optics blur")
     ring_light: Real = Field(6.0, ge=0.0, le=1000.0, description="IR ring light strength")
     electrons_per_unit: Real = Field(4.0e5, gt=0.0, le=1e10, description="sensor sensitivity: e- per radiance unit per second")
+    clock: ClockConfig | None = Field(None, description="each camera's own clock (offset, drift, jitter, drops); "
+                                      "none: synchronised global shutters")
+
+    @model_serializer(mode="wrap")
+    def _omit_unset_clock(self, handler):
+        # Sensors without a clock serialise (and hash) as they did before the field.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("clock", 0) is None:
+            del data["clock"]
+        return data
 
 
 class CameraConfig(FrozenModel):

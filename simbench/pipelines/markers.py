@@ -77,3 +77,26 @@ def score_markers(gt: GroundTruth, capture: MarkerCapture) -> dict[str, float]:
         metrics["skeleton.joint_position_rmse_mm"] = skeleton_metrics.joint_position_rmse_mm(
             fit.joint_centres_m[:, body_idx], gt.joint_centres)
     return metrics
+
+
+def score_sync(sync, gt: GroundTruth) -> dict[str, float]:
+    """``sync.*``: the estimated clocks of unsynchronised cameras against the true ones.
+
+    ``sync.offset_error_ms`` and ``sync.drift_error_ppm`` are RMS over the cameras other than
+    the reference (whose offset and drift are zero by definition); the offset is that of each
+    camera clock's zero on the reference clock (:meth:`simbench.stage.clocks.CameraClocks.relative_to`).
+    """
+    rate = np.asarray(gt.clock_rate, float)
+    ref = sync.reference
+    true_offset = (np.asarray(gt.clock_offset_s, float) - gt.clock_offset_s[ref]) / rate[ref]
+    true_drift = rate / rate[ref] - 1.0
+    others = np.arange(len(rate)) != ref
+    off_err = (np.asarray(sync.offset_s) - true_offset)[others]
+    drift_err = (np.asarray(sync.drift) - true_drift)[others]
+    return {
+        "sync.offset_error_ms": float(np.sqrt(np.mean(off_err**2)) * 1e3),
+        "sync.offset_error_max_ms": float(np.max(np.abs(off_err)) * 1e3),
+        "sync.drift_error_ppm": float(np.sqrt(np.mean(drift_err**2)) * 1e6),
+        "sync.true_offset_max_ms": float(np.max(np.abs(true_offset)) * 1e3),
+        "sync.true_drift_max_ppm": float(np.max(np.abs(true_drift)) * 1e6),
+    }

@@ -30,7 +30,9 @@ from mocap.detection import DetectionParams
 from mocap.types import Detections
 from mocap.errors import MocapInputError
 from mocap.labelling import save_template
-from mocap.marker_pipeline import DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections, export_capture
+from mocap.marker_pipeline import (DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections,
+                                   capture_unsynchronised, export_capture)
+from mocap.synchronisation import ClockSync
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
 from simbench.pipelines.exchange.command import run_command
@@ -38,12 +40,13 @@ from simbench.pipelines.exchange.inputs import write_inputs
 from simbench.pipelines.exchange.results import read_results, score_results
 from simbench.output_dir import AtomicOutputDir
 from simbench.pipelines.calibration import run_calibration
-from simbench.pipelines.markers import label_template, pipeline_params, score_markers, subject_model
+from simbench.pipelines.markers import label_template, pipeline_params, score_markers, score_sync, subject_model
 from simbench.pipelines.report import write_run_report
 from simbench.pipelines.shirt import run_shirt_capture
 from simbench.pipelines.shirt_database import ProgressFactory
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
+from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.rendering import (RenderedSequence, contact_sheet_rows, render_frames, render_writer, save_scenario_copy,
                                       write_contact_sheet)
 
@@ -160,6 +163,7 @@ class _Run:
         self.metrics: dict[str, float] = {}
         self.report_sections: list[str] = []
         self.capture: MarkerCapture | None = None
+        self.sync: ClockSync | None = None  # the estimated clocks of unsynchronised cameras
         self.detection_noise_px = 0.0  # injected 2D detection noise (run_scenario's argument)
 
     def render(self, progress) -> None:
@@ -222,7 +226,37 @@ class _Run:
         self.timings["pipeline_s"] = time.perf_counter() - t1
         if self.capture is not None:
             with self.stages.run("scoring"):
-                self.metrics.update(score_markers(self.gt, self.capture))
+                self.metrics.update(score_markers(self._gt_at_reference_instants(), self.capture))
+        if self.sync is not None:
+            with self.stages.run("synchronisation scoring"):
+                self.metrics.update(score_sync(self.sync, self.gt))
+            with self.stages.run("naive frame pairing"):
+                self._naive_pairing(params)
+
+    def _unsynchronised(self) -> bool:
+        """The cameras run on their own clocks (a ``[sensor.clock]`` that is not all zero)."""
+        return self.gt.camera_timestamps is not None
+
+    def _gt_at_reference_instants(self) -> GroundTruth:
+        """The ground truth the synchronised capture is scored against: with unsynchronised
+        cameras the pipeline's 2D tracks are at camera 0's instants (it resampled every camera
+        there), so their truth is the markers projected at those instants."""
+        if not self._unsynchronised():
+            return self.gt
+        F, M = self.gt.markers_3d.shape[:2]
+        m2d = self.gt.calibration().project(self.gt.markers_3d.reshape(-1, 3)).reshape(-1, F, M, 2).transpose(1, 0, 2, 3)
+        return dataclasses.replace(self.gt, markers_2d=m2d)
+
+    def _naive_pairing(self, params: MarkerPipelineParams) -> None:
+        """The pipeline as if the cameras were synchronised (frame ``k`` of every camera together,
+        camera 0's timestamps): ``markers.rmse_naive_mm``, what synchronisation is worth."""
+        rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0x7AC]))
+        naive = capture_from_detections(self._detections(), self.calibration, label_template(self.stage),
+                                        self.gt.camera_timestamps[:, 0], dataclasses.replace(params, solve_skeleton=False),
+                                        rng, subject_model(self.stage), self.stream.ms)
+        scored = score_markers(self.gt, naive)
+        self.metrics["markers.rmse_naive_mm"] = scored["markers.rmse_mm"]
+        self.metrics["markers.reconstructed_fraction_naive"] = scored["markers.reconstructed_fraction"]
 
     def command_pipeline(self) -> None:
         """``[pipeline] kind = "command"``: the inputs folder (``inputs/``, in the pipeline's format,
@@ -255,6 +289,12 @@ class _Run:
     def _capture_with(self, params: MarkerPipelineParams) -> MarkerCapture:
         reference = self.stage.capture_reference()  # a real capture: rigid clusters instead of a skeleton
         rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0x7AC]))
+        if self._unsynchronised():  # each camera's own timestamps: synchronise from the markers' motion
+            capture, self.sync = capture_unsynchronised(
+                self._detections(), list(self.gt.camera_timestamps.T), self.calibration, label_template(self.stage),
+                params, rng, subject_model(self.stage), self.stream.ms,
+                marker_model=reference.marker_model() if reference is not None else None)
+            return capture
         return capture_from_detections(self._detections(), self.calibration, label_template(self.stage), self.gt.times,
                                        params, rng, subject_model(self.stage), self.stream.ms,
                                        marker_model=reference.marker_model() if reference is not None else None)

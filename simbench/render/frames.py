@@ -162,7 +162,10 @@ class FrameRenderer:
 
     # ------------------------------------------------------------------ render
     def render_frame(self, index: int, t_mid: float, subframe_poses: list[Pose], mid_pose: Pose,
-                     rng: np.random.Generator) -> FrameOutput:
+                     rng: np.random.Generator, only: frozenset[int] | None = None) -> FrameOutput:
+        """Every camera's frame at ``t_mid``; with ``only``, just those cameras' (the others'
+        images, ids and visibility are left unset: :func:`iterate_frames` fills them from
+        their own instants)."""
         C = len(self.cameras)
         ss = self.cfg.antialias
         H, W = self.cameras[0].height, self.cameras[0].width
@@ -175,6 +178,8 @@ class FrameRenderer:
         mid_posed = None if n == 1 else self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
         sub_times = self.subframe_times(t_mid, n)
         for ci, cam in enumerate(self.cameras):
+            if only is not None and ci not in only:
+                continue
             canvas = cam.canvas(ss)
             acc = None
             idr = None
@@ -283,7 +288,18 @@ def frame_rng(seed: int, frame: int) -> np.random.Generator:
 
 def iterate_frames(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Callable[[np.ndarray], list[Pose]],
                    seed: int) -> Iterator[FrameOutput]:
-    """Render every frame in order (a generator: frames are written as they come)."""
+    """Render every frame in order (a generator: frames are written as they come).
+
+    ``times_mid`` is ``(F,)`` (every camera's frame ``k`` at one instant) or ``(F, C)``, each
+    camera's frame at its own instant (:mod:`simbench.stage.clocks`): see :func:`_iterate_per_camera`.
+    """
+    times_mid = np.asarray(times_mid, float)
+    if times_mid.ndim == 2:
+        if (times_mid == times_mid[:, :1]).all():
+            times_mid = times_mid[:, 0]  # one instant per frame: exactly the synchronised render
+        else:
+            yield from _iterate_per_camera(renderer, times_mid, pose_at, seed)
+            return
     plan = plan_subframes(renderer, times_mid, pose_at)
     all_times = np.concatenate([np.concatenate([p, [t]]) for p, t in zip(plan, times_mid)])
     poses = poses_at_times(pose_at, all_times)
@@ -293,3 +309,49 @@ def iterate_frames(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Call
         mid_pose = poses[pos + len(sub)]
         pos += len(sub) + 1
         yield renderer.render_frame(k, float(t), sub_poses, mid_pose, frame_rng(seed, k))
+
+
+def _iterate_per_camera(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Callable[[np.ndarray], list[Pose]],
+                        seed: int) -> Iterator[FrameOutput]:
+    """Frames whose cameras expose at their own instants ``times_mid (F, C)``.
+
+    Frame ``k`` is rendered once per distinct instant among its cameras (each render drawing
+    just the cameras at that instant, with its own noise stream), and the pieces are merged.
+    A camera whose frame repeats its previous instant (a duplicated frame) gets that frame's
+    image again, as a webcam repeating a frame does. As for synchronised frames, the poses of
+    every instant are simulated up front (a few kB each); the images go frame by frame.
+    """
+    F, C = times_mid.shape
+    H, W = renderer.cameras[0].height, renderer.cameras[0].width
+    groups: list[list[tuple[float, list[int]]]] = []  # per frame: (instant, cameras) to render
+    for k in range(F):
+        by_t: dict[float, list[int]] = {}
+        for ci in range(C):
+            if k == 0 or times_mid[k, ci] != times_mid[k - 1, ci]:
+                by_t.setdefault(float(times_mid[k, ci]), []).append(ci)
+        groups.append(list(by_t.items()))
+    instants = np.array([t for g in groups for t, _ in g])
+    plan = plan_subframes(renderer, instants, pose_at)
+    poses = poses_at_times(pose_at, np.concatenate([np.concatenate([p, [t]]) for p, t in zip(plan, instants)]))
+    prev: FrameOutput | None = None
+    pos, j = 0, 0
+    for k in range(F):
+        images = np.empty((C, H, W, 3), np.uint8)
+        ids = np.zeros((C, H, W), np.int16)
+        vis = np.zeros((C, renderer.n_markers))
+        done: set[int] = set()
+        n_sub = 1
+        for t, cams in groups[k]:
+            sub = plan[j]
+            sub_poses, mid_pose = poses[pos: pos + len(sub)], poses[pos + len(sub)]
+            pos += len(sub) + 1
+            j += 1
+            rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5EB5, k, 1 + cams[0]]))
+            out = renderer.render_frame(k, t, sub_poses, mid_pose, rng, only=frozenset(cams))
+            images[cams], ids[cams], vis[cams] = out.images[cams], out.ids[cams], out.marker_visible_fraction[cams]
+            n_sub = max(n_sub, out.n_subframes)
+            done.update(cams)
+        for ci in set(range(C)) - done:  # duplicated frames
+            images[ci], ids[ci], vis[ci] = prev.images[ci], prev.ids[ci], prev.marker_visible_fraction[ci]
+        prev = FrameOutput(k, float(times_mid[k, 0]), images, ids, vis, n_sub)
+        yield prev

@@ -25,6 +25,12 @@ joint_centres          (F, J, 3)            body origins = joint centres (m)
 prop_poses             (F, P, 4, 4)         prop body poses (world, m)
 light_intensity        (F, L)               intensity of each light at the frame time
 n_subframes            (F,) int             shutter sub-frames rendered per frame
+camera_times           (F, C)               only with unsynchronised ``[sensor.clock]``:
+                                            each camera's frames' true mid-exposure
+                                            instants (``times`` = camera 0's) (s)
+camera_timestamps      (F, C)               ... and each camera's own timestamps (s)
+clock_offset_s         (C,)                 ... true time at each clock's zero (s)
+clock_rate             (C,)                 ... true seconds per clock second
 =====================  ==================  ==========================================
 
 ``ids.npz`` (compressed): ``cam_<name>`` (F, H, W) int16 id maps at mid-exposure
@@ -78,6 +84,12 @@ class GroundTruth:
     scenario_name: str = ""
     scenario_hash: str = ""
     id_maps: dict[str, np.ndarray] = field(default_factory=dict)
+    # Only with a [sensor.clock] whose cameras are not synchronised (simbench.stage.clocks);
+    # ``times`` and the 3D truth are then camera 0's frames' instants.
+    camera_times: np.ndarray | None = None       # (F, C) true mid-exposure instant of each camera's frame (s)
+    camera_timestamps: np.ndarray | None = None  # (F, C) each camera's own timestamp of its frame (s)
+    clock_offset_s: np.ndarray | None = None     # (C,) true time at each camera clock's zero (s)
+    clock_rate: np.ndarray | None = None         # (C,) true seconds per clock second
 
     @property
     def n_frames(self) -> int:
@@ -93,11 +105,13 @@ class GroundTruth:
     # ------------------------------------------------------------------ I/O
     _ARRAYS = ("times", "K", "dist", "R", "t", "markers_3d", "markers_2d", "marker_visible", "marker_visible_frac",
                "qpos", "joint_centres", "prop_poses", "light_intensity", "n_subframes")
+    _CLOCK_ARRAYS = ("camera_times", "camera_timestamps", "clock_offset_s", "clock_rate")
 
     def save(self, directory: str | Path) -> None:
         d = Path(directory)
         d.mkdir(parents=True, exist_ok=True)
         arrays = {k: getattr(self, k) for k in self._ARRAYS}
+        arrays.update({k: getattr(self, k) for k in self._CLOCK_ARRAYS if getattr(self, k) is not None})
         arrays["image_size"] = np.asarray(self.image_size)
         np.savez(d / "ground_truth.npz", **arrays)
         if self.id_maps:

@@ -9,6 +9,7 @@ finished: an interrupted render leaves nothing half-written (:mod:`simbench.outp
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ import numpy as np
 
 from simbench import interrupts
 from simbench.stage.build import build_stage
+from simbench.stage.clocks import CameraClocks
 from simbench.stage.stage import Stage
 from simbench.stage.ground_truth import GroundTruth
 from simbench.output_dir import AtomicOutputDir  # noqa: F401  (re-exported: the bench's output folders)
@@ -60,18 +62,32 @@ class FrameRecord:
         return cls(out.time_s, out.marker_visible_fraction, out.n_subframes)
 
 
-def _ground_truth(bench: Stage, records: list[FrameRecord], id_maps: list[np.ndarray] | None) -> GroundTruth:
-    """The ground truth of the frames ``records`` describe; ``id_maps``: one ``(F, H, W)`` int16 array per camera, or None."""
+def _ground_truth(bench: Stage, records: list[FrameRecord], id_maps: list[np.ndarray] | None,
+                  clocks: CameraClocks | None = None) -> GroundTruth:
+    """The ground truth of the frames ``records`` describe; ``id_maps``: one ``(F, H, W)`` int16 array per camera, or None.
+
+    With unsynchronised ``clocks`` the frame times (and the 3D truth) are camera 0's, and each
+    camera's 2D truth is projected at its own frames' instants."""
     sc = bench.scenario
     times = np.array([o.time_s for o in records])
-    st = bench.states(times)
+    unsynced = clocks is not None and not clocks.synchronised
     cams = bench.cameras
     M = len(bench.marker_names)
     F, C = len(times), len(cams)
+    if unsynced:
+        uniq, inv = np.unique(clocks.true_times_s[:F], return_inverse=True)
+        inv = inv.reshape(F, C)
+        st_all = bench.states(uniq)
+        st = dataclasses.replace(st_all, **{f: getattr(st_all, f)[inv[:, 0]] for f in
+                                            ("times", "qpos", "body_xpos", "body_xmat", "marker_xpos", "joint_centres")},
+                                 prop_poses={n: v[inv[:, 0]] for n, v in st_all.prop_poses.items()})
+    else:
+        st = bench.states(times)
     m2d = np.full((F, C, M, 2), np.nan)
     for ci, cam in enumerate(cams):
         if M:
-            m2d[:, ci] = cam.project(st.marker_xpos.reshape(-1, 3)).reshape(F, M, 2)
+            xyz = st_all.marker_xpos[inv[:, ci]] if unsynced else st.marker_xpos
+            m2d[:, ci] = cam.project(xyz.reshape(-1, 3)).reshape(F, M, 2)
     vis_frac = np.stack([o.marker_visible_fraction for o in records]) if records else np.zeros((0, C, M))
     P = len(bench.prop_names)
     prop_poses = np.stack([st.prop_poses[n] for n in bench.prop_names], axis=1) if P else np.zeros((F, 0, 4, 4))
@@ -91,6 +107,10 @@ def _ground_truth(bench: Stage, records: list[FrameRecord], id_maps: list[np.nda
     )
     if id_maps is not None:
         gt.id_maps = {c.name: id_maps[ci] for ci, c in enumerate(cams)}
+    if unsynced:
+        gt.camera_times = clocks.true_times_s[:F].copy()
+        gt.camera_timestamps = clocks.timestamps_s[:F].copy()
+        gt.clock_offset_s, gt.clock_rate = clocks.offset_s.copy(), clocks.rate.copy()
     return gt
 
 
@@ -108,10 +128,12 @@ def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None =
     """
     records: list[FrameRecord] = []
     F, cams = len(bench.frame_times()), bench.cameras
+    clocks = bench.clocks()
+    times = bench.frame_times() if clocks.synchronised else clocks.true_times_s  # (F,) or each camera's (F, C)
     frames = np.empty((F, len(cams), cams[0].height, cams[0].width, 3), np.uint8) if keep_frames and F else None
     ids = [np.empty((F, c.height, c.width), np.int16) for c in cams] if keep_ids else None
     with bench.frame_renderer() as renderer:
-        for out in iterate_frames(renderer, bench.frame_times(), bench.pose_at, bench.scenario.seed):
+        for out in iterate_frames(renderer, times, bench.pose_at, bench.scenario.seed):
             if on_frame is not None:
                 on_frame(out)
             if frames is not None:
@@ -123,7 +145,7 @@ def render_frames(bench: Stage, on_frame: Callable[[FrameOutput], None] | None =
             del out  # the frame's images and id maps go now, not when the next frame replaces them
             if progress is not None:
                 progress(1)
-    gt = _ground_truth(bench, records, ids)
+    gt = _ground_truth(bench, records, ids, clocks)
     return RenderedSequence(gt, frames)
 
 
@@ -149,6 +171,21 @@ def render_writer(bench: Stage, folder: Path, png: bool) -> Iterator[Callable[[F
                     cv2.imwrite(str(folder / "frames" / c.name / f"{out.index:06d}.png"), out.images[ci][..., ::-1])
 
         yield on_frame
+    if sc.sensor.clock is not None:
+        write_timestamps(bench.clocks(), [c.name for c in bench.cameras], videos)
+
+
+def write_timestamps(clocks: CameraClocks, camera_names: list[str], videos: Path) -> None:
+    """``videos/<camera>.timestamps.csv``: each frame's timestamp from the camera's own clock
+    (what a real webcam gives; its offset and drift are unknown to the pipeline)."""
+    for ci, name in enumerate(camera_names):
+        rows = "".join(f"{k},{t:.9f}\n" for k, t in enumerate(clocks.timestamps_s[:, ci]))
+        (videos / f"{name}.timestamps.csv").write_text("frame,timestamp_s\n" + rows)
+
+
+def read_timestamps(path: Path) -> np.ndarray:
+    """The ``(F,)`` timestamps (s) of a ``<camera>.timestamps.csv``."""
+    return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)[:, 1]
 
 
 def contact_sheet_rows(n_frames: int, n_rows: int = 3) -> list[int]:

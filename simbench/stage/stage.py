@@ -31,6 +31,7 @@ from simbench.scenes.motions import Motion, make_motion
 from simbench.scenes.props import BallProp, BarrierProp, MovingProp
 from simbench.scenes.scene import Scene, build_scene
 from simbench.scenes.simulation import SceneStates, simulate
+from simbench.stage.clocks import CameraClocks, camera_clocks
 from simbench.stage.renderer import build_frame_renderer, mid_exposure_times
 
 
@@ -154,6 +155,11 @@ class Stage:
         """Timestamps ``(F,)`` s of the take's frames: the middle of each exposure."""
         sc = self.scenario
         return mid_exposure_times(sc.n_frames, sc.fps, sc.sensor.exposure_ms)
+
+    def clocks(self) -> CameraClocks:
+        """Every camera's frame timing (:mod:`simbench.stage.clocks`; synchronised without ``[sensor.clock]``)."""
+        sc = self.scenario
+        return camera_clocks(sc.sensor.clock, len(self.cameras), sc.n_frames, sc.fps, sc.sensor.exposure_ms, sc.seed)
 
     def frame_renderer(self, rasterizer: Rasterizer | None = None) -> FrameRenderer:
         """The take's renderer: the scenario's room, sensor and lights; the body surface, markers and props moving."""
