@@ -100,3 +100,19 @@ def score_sync(sync, gt: GroundTruth) -> dict[str, float]:
         "sync.true_offset_max_ms": float(np.max(np.abs(true_offset)) * 1e3),
         "sync.true_drift_max_ppm": float(np.max(np.abs(true_drift)) * 1e6),
     }
+
+
+def sync_report(sync, gt: GroundTruth) -> list[str]:
+    """The report's section on the cameras' clocks: each camera's true and estimated offset and drift."""
+    rate = np.asarray(gt.clock_rate, float)
+    ref = sync.reference
+    true_offset = (np.asarray(gt.clock_offset_s, float) - gt.clock_offset_s[ref]) / rate[ref]
+    true_drift = rate / rate[ref] - 1.0
+    lines = ["## Camera clocks (estimated from the markers' motion)", "",
+             f"Each camera's clock on {gt.camera_names[ref]}'s: `s_ref = offset + (1 + drift) * s_cam`.", "",
+             "| camera | true offset (ms) | estimated (ms) | error (ms) | true drift (ppm) | estimated (ppm) |",
+             "|---|---|---|---|---|---|"]
+    for c, name in enumerate(gt.camera_names):
+        lines.append(f"| {name} | {true_offset[c] * 1e3:.3f} | {sync.offset_s[c] * 1e3:.3f} | "
+                     f"{(sync.offset_s[c] - true_offset[c]) * 1e3:+.3f} | {true_drift[c] * 1e6:.1f} | {sync.drift[c] * 1e6:.1f} |")
+    return lines + [""]

@@ -40,7 +40,7 @@ from simbench.pipelines.exchange.inputs import write_inputs
 from simbench.pipelines.exchange.results import read_results, score_results
 from simbench.output_dir import AtomicOutputDir
 from simbench.pipelines.calibration import run_calibration
-from simbench.pipelines.markers import label_template, pipeline_params, score_markers, score_sync, subject_model
+from simbench.pipelines.markers import label_template, pipeline_params, score_markers, score_sync, subject_model, sync_report
 from simbench.pipelines.report import write_run_report
 from simbench.pipelines.shirt import run_shirt_capture
 from simbench.pipelines.shirt_database import ProgressFactory
@@ -230,6 +230,7 @@ class _Run:
         if self.sync is not None:
             with self.stages.run("synchronisation scoring"):
                 self.metrics.update(score_sync(self.sync, self.gt))
+                self.report_sections += sync_report(self.sync, self.gt)
             with self.stages.run("naive frame pairing"):
                 self._naive_pairing(params)
 
