@@ -25,15 +25,16 @@ not used.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment, minimize
 
 from mocap.calibration import Calibration
-from mocap.errors import MocapInputError
+from mocap.errors import InputFileError, MocapInputError
 from mocap.types import Detections
 
-__all__ = ["SyncParams", "ClockSync", "LinkedDetections", "estimate_sync", "resample_detections"]
+__all__ = ["SyncParams", "ClockSync", "LinkedDetections", "estimate_sync", "resample_detections", "read_timestamps_csv"]
 
 
 @dataclass(frozen=True)
@@ -303,6 +304,31 @@ def estimate_sync(detections: list[list[Detections]], timestamps: list[np.ndarra
         drift[c] = d
         cost[c] = float(fun)
     return ClockSync(reference, offset, drift, cost)
+
+
+def read_timestamps_csv(path: str | Path) -> np.ndarray:
+    """A camera's timestamps ``(F,)`` s from ``<video>.timestamps.csv`` (a ``frame,timestamp_s``
+    header, then one row per frame: what ``simbench render`` writes beside each video).
+
+    Raises
+    ------
+    InputFileError
+        The file is missing, unreadable, or its timestamps are not finite and strictly increasing.
+    """
+    path = Path(path)
+    fix = "give one row 'frame,timestamp_s' per video frame, timestamps in seconds, strictly increasing"
+    if not path.is_file():
+        raise InputFileError(path, "missing (--timestamps reads <video name>.timestamps.csv beside each video)", fix)
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot be read as numbers ({str(exc).splitlines()[0]})", fix) from None
+    if data.shape[0] == 0 or data.shape[1] != 2:
+        raise InputFileError(path, f"holds {data.shape[0]} rows of {data.shape[1]} columns", fix)
+    t = data[:, 1]
+    if not np.isfinite(t).all() or (len(t) > 1 and not (np.diff(t) > 0).all()):
+        raise InputFileError(path, "has timestamps that are not finite or not strictly increasing", fix)
+    return t
 
 
 def resample_detections(detections: list[list[Detections]], timestamps: list[np.ndarray], sync: ClockSync,

@@ -140,3 +140,22 @@ def test_clocks_known_to_share_one_rate_get_the_offset_alone():
     sync = estimate_sync(dets, times, cal, params=SyncParams(max_drift_ppm=0.0))
     assert np.array_equal(sync.drift, np.zeros(3))
     assert np.abs(sync.offset_s - offsets).max() < 1e-3
+
+
+def test_timestamps_files_are_read_or_refused_naming_the_file(tmp_path):
+    from mocap.errors import InputFileError
+    from mocap.synchronisation import read_timestamps_csv
+
+    good = tmp_path / "cam0.timestamps.csv"
+    good.write_text("frame,timestamp_s\n0,0.002\n1,0.0353\n2,0.0687\n")
+    assert np.allclose(read_timestamps_csv(good), [0.002, 0.0353, 0.0687])
+    cases = {"missing.timestamps.csv": None, "back.csv": "frame,timestamp_s\n0,0.1\n1,0.05\n",
+             "nan.csv": "frame,timestamp_s\n0,0.1\n1,nan\n", "words.csv": "frame,timestamp_s\n0,zero\n",
+             "three.csv": "frame,timestamp_s\n0,0.1,7\n"}
+    for name, text in cases.items():
+        p = tmp_path / name
+        if text is not None:
+            p.write_text(text)
+        with pytest.raises(InputFileError) as err:
+            read_timestamps_csv(p)
+        assert str(p) in str(err.value) and "\n" not in str(err.value)

@@ -37,8 +37,15 @@ def markers(
     mode: str = typer.Option("ir", "--mode", help="'ir' (bright markers, dark scene) or 'visible'"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frame rate (default: read from the first video)"),
     seed: int = typer.Option(0, "--seed", help="seed of stochastic trackers"),
+    timestamps: bool = typer.Option(False, "--timestamps", help="cameras not synchronised: read each video's "
+                                    "<name>.timestamps.csv (its own clock) and synchronise them from the markers' motion"),
 ) -> None:
-    """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject)."""
+    """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject).
+
+    With --timestamps the cameras may run on their own clocks: each camera's offset and drift
+    relative to the first are estimated from the markers' motion (mocap.synchronisation), the
+    blobs are interpolated to the first camera's frame instants, and summary.json gives the
+    estimated clocks."""
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, capture_from_detections, export_capture
@@ -68,6 +75,15 @@ def markers(
             raise InputFileError(paths[0], f"the file states no frame rate ({fps})", "pass --fps with the capture's frame rate")
     elif not (np.isfinite(fps) and 0 < fps <= 10000):
         raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
+    stamps = None
+    if timestamps:
+        from mocap.synchronisation import read_timestamps_csv
+
+        stamps = [read_timestamps_csv(p.with_name(p.stem + ".timestamps.csv")) for p in paths]
+        for p, t, pr in zip(paths, stamps, probes):
+            if len(t) != pr.frames:
+                raise InputFileError(p.with_name(p.stem + ".timestamps.csv"), f"holds {len(t)} timestamps for the "
+                                     f"{pr.frames} frames of {p.name}", "give one timestamp per frame")
     out_dir = Path(out)
     subj = None
     if subject is not None:
@@ -82,9 +98,20 @@ def markers(
         if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
             raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
                                  f"check --mode ({mode}: 'ir' finds bright markers on a dark scene, 'visible' white markers on a lit subject) and the exposure")
-        times = np.arange(len(stream.detections[0])) / fps
-        capture = capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
-                                          stream.ms)
+        sync_summary = None
+        if stamps is not None:
+            from mocap.marker_pipeline import capture_unsynchronised
+
+            n = len(stream.detections[0])
+            capture, sync = capture_unsynchronised(stream.detections, [t[:n] for t in stamps], cal, tmpl, params,
+                                                   np.random.default_rng(seed), subj, stream.ms)
+            sync_summary = {"reference": cal.names[sync.reference], "model": "s_reference = offset + (1 + drift) * s_camera",
+                            "offset_ms": {c: round(float(o) * 1e3, 4) for c, o in zip(cal.names, sync.offset_s)},
+                            "drift_ppm": {c: round(float(d) * 1e6, 2) for c, d in zip(cal.names, sync.drift)}}
+        else:
+            times = np.arange(len(stream.detections[0])) / fps
+            capture = capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
+                                              stream.ms)
         files = export_capture(capture, tmp, cal, subj)
         traj = capture.trajectories
         have = np.isfinite(traj.xyz).all(-1)
@@ -92,6 +119,8 @@ def markers(
                    "reconstructed_fraction": float(have.mean()),
                    "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
                    "files": {k: str(out_dir / Path(v).name) for k, v in files.items()}}
+        if sync_summary is not None:
+            summary["synchronisation"] = sync_summary
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out_dir}/",
                   markup=False)
