@@ -107,13 +107,13 @@ class DetectionParams:
     min_area_px : int or None
         Smallest accepted blob (thresholded pixels; IR 3, visible 2).
     small_peak_factor : float
-        ``"ir"``: a blob smaller than ``min_area_px`` (down to one pixel) is still accepted
+        A blob smaller than ``min_area_px`` (down to one pixel) is still accepted
         when its peak is at least this many times the threshold above the background. A
         14 mm marker 4-5 m from a 640x480 camera is 1-2 pixels across; noise that crosses
         the threshold barely does (on bvh_walk with 4 cameras the true 1-2 pixel blobs peak
         at 2.4x the threshold or more in 95 % of cases, median 4.2x). 0 disables.
     small_area_fraction : float
-        ``"ir"``: such a blob must also be at least this fraction of the median area of the
+        Such a blob must also be at least this fraction of the median area of the
         image's blobs of ``min_area_px`` or more (where markers are 15-20 px, a 1-2 px blob is
         the sliver of a marker hidden behind the body, not a distant marker).
     max_area_px : int
@@ -337,6 +337,27 @@ def _blobs(mask: np.ndarray, params: DetectionParams, min_area_px: int | None = 
     return _Blobs(n, labels, px, py, lab, area, mx, my, keep)
 
 
+def _blobs_with_small(mask: np.ndarray, signal: np.ndarray, thr: float, params: DetectionParams) -> _Blobs | None:
+    """:func:`_blobs` of the mask, with blobs under ``min_area_px`` kept only when their peak
+    ``signal`` is at least ``small_peak_factor * thr`` and their area at least
+    ``small_area_fraction`` of the median of the larger blobs; None when no blob is kept."""
+    min_area = params.resolved("min_area_px")
+    b = _blobs(mask, params, min_area_px=1 if params.small_peak_factor > 0 else None)
+    if b is None or not b.keep.any():
+        return None
+    small = b.keep & (b.area < min_area)
+    if small.any():
+        # Tiny blobs only when clearly brighter than the threshold, and only where the
+        # image's markers are small anyway: beside markers of 15-20 px a blob of one or two
+        # is a sliver of a hidden marker, its centroid off by a pixel or more.
+        peak = np.zeros(b.n)
+        np.maximum.at(peak, b.lab, signal[b.py, b.px].astype(np.float64))
+        large = b.keep & ~small
+        typical = float(np.median(b.area[large])) if large.any() else 0.0
+        b.keep &= ~small | ((peak >= params.small_peak_factor * thr) & (b.area >= params.small_area_fraction * typical))
+    return b if b.keep.any() else None
+
+
 def _gate(mask: np.ndarray, gray: np.ndarray, bg: np.ndarray | None, foreground_mask: np.ndarray | None,
           params: DetectionParams) -> np.ndarray:
     """Keep mask pixels (non-zero) brighter than a static background / inside a
@@ -361,23 +382,10 @@ def _detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
     thr = _threshold(signal, _noise_std(gray), params)
     _, mask = cv2.threshold(signal, thr, 1, cv2.THRESH_BINARY)
     mask = _gate(mask, gray, bg, foreground_mask, params)
-    min_area = params.resolved("min_area_px")
-    b = _blobs(mask, params, min_area_px=1 if params.small_peak_factor > 0 else None)
-    if b is None or not b.keep.any():
+    b = _blobs_with_small(mask, signal, thr, params)
+    if b is None:
         return Detections.empty()
     n = b.n
-    small = b.keep & (b.area < min_area)
-    if small.any():
-        # Tiny blobs only when clearly brighter than the threshold, and only where the
-        # image's markers are small anyway: beside markers of 15-20 px a blob of one or two
-        # is a sliver of a hidden marker, its centroid off by a pixel or more.
-        peak = np.zeros(n)
-        np.maximum.at(peak, b.lab, signal[b.py, b.px].astype(np.float64))
-        large = b.keep & ~small
-        typical = float(np.median(b.area[large])) if large.any() else 0.0
-        b.keep &= ~small | ((peak >= params.small_peak_factor * thr) & (b.area >= params.small_area_fraction * typical))
-        if not b.keep.any():
-            return Detections.empty()
     # Pixels of the blobs grown by dilate_px (their labels by max-dilation of the label
     # image; inside a blob this is the blob's own label).
     k = 2 * params.dilate_px + 1
@@ -445,23 +453,10 @@ def _detect_visible(img: np.ndarray, gray: np.ndarray, params: DetectionParams, 
     level = cv2.LUT(local_max, lut.astype(np.uint8))
     mask = cv2.compare(signal, level, cv2.CMP_GE)
     mask = _gate(mask, gray, bg, foreground_mask, params)
-    min_area = params.resolved("min_area_px")
-    b = _blobs(mask, params, min_area_px=1 if params.small_peak_factor > 0 else None)
-    if b is None or not b.keep.any():
+    b = _blobs_with_small(mask, signal, thr, params)
+    if b is None:
         return Detections.empty()
     n = b.n
-    small = b.keep & (b.area < min_area)
-    if small.any():
-        # Tiny blobs only when clearly brighter than the threshold, and only where the
-        # image's markers are small anyway: beside markers of 15-20 px a blob of one or two
-        # is a sliver of a hidden marker, its centroid off by a pixel or more.
-        peak = np.zeros(n)
-        np.maximum.at(peak, b.lab, signal[b.py, b.px].astype(np.float64))
-        large = b.keep & ~small
-        typical = float(np.median(b.area[large])) if large.any() else 0.0
-        b.keep &= ~small | ((peak >= params.small_peak_factor * thr) & (b.area >= params.small_area_fraction * typical))
-        if not b.keep.any():
-            return Detections.empty()
     # Ring test: peak of the smoothed image over the upper quartile of 16 samples on a
     # ring 1.5 px outside the blob's equivalent disc.
     peak = np.zeros(n, np.float32)
