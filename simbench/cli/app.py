@@ -113,18 +113,10 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
 
 def _run_seeds(sc, out: Path, n: int, start, overrides, workers, scheduler) -> None:
     """``simbench run --seeds N``: the replicate runs, then each metric's mean, CI and spread."""
-    from simbench.cli.sweep import runs_progress
+    from simbench.cli.sweep import counting_progress
     from simbench.sweeps.seeds import run_seeds
 
-    prog = runs_progress(f"run {sc.name}, {n} seeds")
-    task = prog.add_task(f"run {sc.name}, {n} seeds", total=n, failed=0, skipped=0)
-    failed = 0
-
-    def on_record(rec) -> None:
-        nonlocal failed
-        failed += rec.status != "ok"
-        prog.update(task, advance=1, failed=failed)
-
+    prog, on_record = counting_progress(f"run {sc.name}, {n} seeds", n)
     with prog:
         result = run_seeds(sc, out, n, start, overrides, workers, scheduler, on_record)
     console.print(f"wrote {out}/metrics.json and {out}/report.md (seeds {result.seeds[0]}..{result.seeds[-1]} in "

@@ -27,6 +27,21 @@ def runs_progress(description: str):
                     TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), console=console)
 
 
+def counting_progress(description: str, total: int):
+    """``(progress, on_record)``: a :func:`runs_progress` bar with one task of ``total`` runs, and
+    the callback that advances it by one record and counts the failed ones."""
+    prog = runs_progress(description)
+    task = prog.add_task(description, total=total, failed=0, skipped=0)
+    failed = 0
+
+    def on_record(rec) -> None:
+        nonlocal failed
+        failed += rec.status != "ok"
+        prog.update(task, advance=1, failed=failed)
+
+    return prog, on_record
+
+
 def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/sweeps/*.toml)"),
           db: Optional[Path] = typer.Option(None, "--db", help="results database (default out/sweeps/<name>/results.duckdb)"),
           workers: Optional[int] = typer.Option(None, "--workers", "-j", min=1, help="local worker processes (default: all cores)"),
@@ -261,15 +276,7 @@ def compare(first: Path = typer.Argument(..., help="scenario TOML, `simbench run
         if out is not None:
             replaceable_state(out)
         label = lambda p, ov: f"{p}" + (f" ({' '.join(f'{k}={v}' for k, v in ov.items())})" if ov else "")  # noqa: E731
-        prog = runs_progress(f"compare {sc_a.name}")
-        task = prog.add_task(f"compare, {seeds} seeds x 2", total=2 * seeds, failed=0, skipped=0)
-        n_failed = 0
-
-        def on_record(rec) -> None:
-            nonlocal n_failed
-            n_failed += rec.status != "ok"
-            prog.update(task, advance=1, failed=n_failed)
-
+        prog, on_record = counting_progress(f"compare {sc_a.name}, {seeds} seeds x 2", 2 * seeds)
         with prog:
             cmp = cp.run_two(sc_a, sc_b, seeds, seed_start, (label(first, ov_a), label(path_b, ov_b)), ({**both, **ov_a}, {**both, **ov_b}),
                              better, metric or None, out, workers, scheduler, on_record)
