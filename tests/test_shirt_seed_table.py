@@ -46,6 +46,25 @@ def test_summary_counts_seeds_medians_and_shares(dbs):
     assert office.share_good == pytest.approx(2 / 3) and office.share_better == pytest.approx(1 / 3)
     assert (office.worst_seed, office.worst_full_cm) == (3, 8.0)
     assert outdoor.share_good == 1.0 and outdoor.share_better == 0.5 and outdoor.median_full_cm == 2.0
+    # The paired comparison `simbench compare` makes, baseline (A) against full (B): differences
+    # full - baseline per seed -0.5, -0.4, -1.0 on the office (mean -0.6333), 3 pairs only.
+    c = office.comparison
+    assert c.n_pairs == 3 and c.diff_mean == pytest.approx(-1.9 / 3) and c.better == "lower"
+    assert c.diffs == pytest.approx((-0.5, -0.4, -1.0))
+    assert c.p_value == pytest.approx(0.25)  # exact two-sided Wilcoxon, all three of one sign: 2 / 2**3
+    assert c.verdict == "no detectable difference at this N"
+
+
+def test_table_carries_the_paired_comparison_and_its_verdict(tmp_path):
+    # 12 seeds where the full method is 1 cm better every time, within noise
+    runs = [(s, 2.0 + 0.05 * s, 3.0 + 0.05 * s + 0.01 * (s % 3)) for s in range(1, 13)]
+    _db(tmp_path / "o.duckdb", "shirt_office", runs)
+    rows = read_seed_rows([tmp_path / "o.duckdb"])
+    (office,) = summarise(rows)
+    assert office.comparison.verdict == "B better" and office.comparison.ci_high < 0
+    text = seed_table_markdown(rows)
+    assert "| Wilcoxon p, verdict | " in text and "full better" in text
+    assert "| full - baseline, mean (95 % CI) | -1.0" in text
 
 
 def test_markdown_has_a_row_per_seed_bold_failures_and_blank_missing_cells(dbs):

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.seed_stats import A_BETTER, B_BETTER, PairedComparison, paired_comparison
 from simbench.errors import SimbenchInputError
 from simbench.sweeps.results_db import STATUS_OK, ResultsDB
 
@@ -53,6 +54,7 @@ class ScenarioSummary:
     share_better: float        # seeds with full <= BETTER_RATIO * baseline
     worst_seed: int
     worst_full_cm: float
+    comparison: PairedComparison | None = None   # full (B) against baseline (A) on the same seeds, as `simbench compare`
 
 
 def read_seed_rows(db_paths: list[str | Path]) -> list[SeedRow]:
@@ -88,10 +90,18 @@ def summarise(rows: list[SeedRow]) -> list[ScenarioSummary]:
         full = np.array([r.full_cm for r in rs])
         base = np.array([r.baseline_cm for r in rs])
         w = int(np.nanargmax(full))
+        # The same paired statistics as `simbench compare` (Wilcoxon, bootstrap CI of the mean
+        # difference, verdict, detectable effect), with the baseline as A and the full method as B.
+        cmp = paired_comparison(base, full, better="lower", rng=np.random.default_rng(0))
         out.append(ScenarioSummary(name, len(rs), float(np.nanmedian(full)), float(np.nanmedian(base)),
                                    float(np.mean(full <= GOOD_CM)), float(np.mean(full <= BETTER_RATIO * base)),
-                                   rs[w].seed, float(full[w])))
+                                   rs[w].seed, float(full[w]), cmp))
     return out
+
+
+def _verdict(v: str) -> str:
+    """`compare`'s verdict with A and B named (A: baseline, B: full method)."""
+    return {A_BETTER: "baseline better", B_BETTER: "full better"}.get(v, v)
 
 
 def _cell(r: SeedRow | None) -> str:
@@ -117,4 +127,9 @@ def seed_table_markdown(rows: list[SeedRow], summaries: list[ScenarioSummary] | 
     lines.append(f"| full <= {GOOD_CM:g} cm | " + " | ".join(f"{100 * s.share_good:.0f} %" for s in summaries) + " |")
     lines.append(f"| full >= {100 * (1 - BETTER_RATIO):.0f} % better | " + " | ".join(f"{100 * s.share_better:.0f} %" for s in summaries) + " |")
     lines.append("| worst seed | " + " | ".join(f"{s.worst_seed} ({s.worst_full_cm:.2f})" for s in summaries) + " |")
+    if all(s.comparison is not None for s in summaries):
+        lines.append("| full - baseline, mean (95 % CI) | " + " | ".join(
+            f"{s.comparison.diff_mean:+.2f} ({s.comparison.ci_low:+.2f}..{s.comparison.ci_high:+.2f})" for s in summaries) + " |")
+        lines.append("| Wilcoxon p, verdict | " + " | ".join(
+            f"{s.comparison.p_value:.2g}, {_verdict(s.comparison.verdict)}" for s in summaries) + " |")
     return "\n".join(lines) + "\n"
