@@ -163,7 +163,7 @@ def _calibrate(rg, suites, suite, base, pool: int, n_checks: int, workers, sched
 
     if out is not None:
         replaceable_state(out)  # before hours of runs
-    s = suites.get(suite)
+    suites.get(suite)  # an unknown suite is refused before any run
     n_configs = 1 + len(INJECTIONS)
     prog = runs_progress(f"calibrate {suite}")
     task = prog.add_task(f"calibrate {suite}", total=None, failed=0, skipped=0)
