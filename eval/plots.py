@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -24,7 +25,8 @@ def marker_error_over_time(times: np.ndarray, err_mm: np.ndarray, labels: list[s
     ax0.set_title(f"{title} (grey = missing)")
     ax0.set_facecolor("0.6")
     fig.colorbar(im, ax=ax0, label="error (mm)", pad=0.01)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames with no marker: a gap in the line
         ax1.plot(times, np.nanmedian(e, axis=1), label="median over markers")
         ax1.plot(times, np.nanmax(e, axis=1), label="worst marker", alpha=0.7)
     ax1.set_xlabel("time (s)")

@@ -18,6 +18,7 @@ that ratio over all views of the frame*, so threshold and optics blur cancel out
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,7 +107,8 @@ def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Traj
             new_xy[f, c, m_idx] = det.xy[j_idx]
             area_ratio[f, c, m_idx] = det.area[j_idx] / expected[f, m_idx]
     # Blob size relative to the frame's typical ratio (threshold and blur cancel out).
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a frame with no blob at all: NaN, said by the metrics
         typical = np.nanmedian(area_ratio.reshape(F, -1), axis=1)
         rel = area_ratio / typical[:, None, None]
     odd = np.isfinite(rel) & ((rel < p.min_area_ratio) | (rel > p.max_area_ratio))
