@@ -64,6 +64,36 @@ def _refuse_unusable(path: Path, cam: "Camera", fields: dict[str, str]) -> "Came
     return cam
 
 
+def _camera_from_table(path: Path, key: str, tab: dict) -> "Camera":
+    """One camera table of an anipose or Pose2Sim TOML file (:meth:`Calibration.load_toml`)."""
+    for field_name in ("size", "matrix", "distortions", "rotation", "translation"):
+        if field_name not in tab:
+            raise CalibrationFileError(path, f"{key}.{field_name}", "missing",
+                                       "camera tables need size, matrix, distortions, rotation, translation")
+    if tab.get("fisheye", False):  # OpenCV's equidistant model: read as a pinhole it would be silently wrong
+        raise CalibrationFileError(path, f"{key}.fisheye", f"value {tab['fisheye']!r}",
+                                   "fisheye (OpenCV's equidistant model) cannot be read as the pinhole + k1 k2 p1 p2 k3 model "
+                                   "the bench and mocap use; recalibrate with fisheye = false")
+    try:
+        dist = np.asarray(tab["distortions"], dtype=np.float64).ravel()
+        if dist.size not in (4, 5):
+            raise ValueError(f"{dist.size} distortion terms (the pinhole model has 4 or 5: k1 k2 p1 p2 [k3])")
+        rvec = np.asarray(tab["rotation"], dtype=np.float64)
+        if rvec.size != 3:
+            raise ValueError(f"rotation has {rvec.size} values (a Rodrigues vector has 3)")
+        R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
+        size = tab["size"]
+        if len(size) != 2:
+            raise ValueError(f"size has {len(size)} values; it is [width, height]")
+        cam = Camera(str(tab.get("name", key)), (int(size[0]), int(size[1])), tab["matrix"], dist, R, tab["translation"])
+    except (ValueError, TypeError, cv2.error) as exc:
+        raise CalibrationFileError(path, key, str(exc).splitlines()[0],
+                                   "check the array sizes (matrix 3x3, distortions 4 or 5, rotation 3, translation 3)") from None
+    fields = {"K": f"{key}.matrix", "dist": f"{key}.distortions", "R": f"{key}.rotation", "t": f"{key}.translation",
+              "size": f"{key}.size"}
+    return _refuse_unusable(path, cam, fields)
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """One calibrated camera.
@@ -306,6 +336,10 @@ class Calibration:
 
     @classmethod
     def load_toml(cls, path: str | os.PathLike) -> "Calibration":
+        """An anipose ``calibration.toml`` or a Pose2Sim ``Calib.toml``: every table but
+        ``[metadata]`` is a camera, in file order (Pose2Sim's), which for anipose's keys
+        (``cam_0`` ...) is their numeric order. A fisheye camera, 6+ distortion terms, a bad
+        size, non-finite numbers, a bad K or a non-rotation are refused naming the table."""
         path = Path(path)
         if not path.is_file():
             raise CalibrationFileError(path, "", "file not found", "pass the path of a calibration .toml")
@@ -315,26 +349,16 @@ class Calibration:
             raise CalibrationFileError(path, "", f"byte {exc.start} is not UTF-8", "save the file as UTF-8 text") from None
         except tomllib.TOMLDecodeError as exc:
             raise CalibrationFileError(path, "", f"invalid TOML: {exc}", "fix the syntax at the position given") from None
-        cams = []
-        for key in sorted(k for k in doc if k.startswith("cam_")):
-            tab = doc[key]
-            for field_name in ("size", "matrix", "distortions", "rotation", "translation"):
-                if field_name not in tab:
-                    raise CalibrationFileError(path, f"{key}.{field_name}", "missing", "anipose calibration tables need size, matrix, distortions, rotation, translation")
-            if tab.get("fisheye", False):  # OpenCV's equidistant model: read as a pinhole it would be silently wrong
-                raise CalibrationFileError(path, f"{key}.fisheye", f"value {tab['fisheye']!r}", "fisheye cameras cannot be read as the "
-                                           "pinhole + k1 k2 p1 p2 k3 model every stage assumes; recalibrate with fisheye = false")
-            try:
-                R = cv2.Rodrigues(np.asarray(tab["rotation"], dtype=np.float64).reshape(3, 1))[0]
-                cam = Camera(str(tab.get("name", key)), tuple(tab["size"]), tab["matrix"], tab["distortions"], R, tab["translation"])
-            except (ValueError, TypeError, cv2.error) as exc:
-                raise CalibrationFileError(path, key, str(exc), "check the array sizes (matrix 3x3, rotation 3, translation 3)") from None
-            fields = {"K": f"{key}.matrix", "dist": f"{key}.distortions", "R": f"{key}.rotation", "t": f"{key}.translation",
-                      "size": f"{key}.size"}
-            cams.append(_refuse_unusable(path, cam, fields))
+        keys = [k for k, v in doc.items() if k != "metadata" and isinstance(v, dict)]
+        if all(k.startswith("cam_") and k[4:].isdigit() for k in keys):
+            keys.sort(key=lambda k: int(k[4:]))  # anipose: cam_0, cam_1, ..., cam_10 (not string order)
+        cams = [_camera_from_table(path, k, doc[k]) for k in keys]
         if not cams:
-            raise CalibrationFileError(path, "cam_0", "missing", "the file has no [cam_N] tables")
-        return cls(tuple(cams))
+            raise CalibrationFileError(path, "cam_0", "missing", "the file has no camera tables ([cam_0] or [<camera name>])")
+        try:
+            return cls(tuple(cams))
+        except ValueError as exc:
+            raise CalibrationFileError(path, "name", str(exc), "give every camera its own name") from None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Calibration":

@@ -31,7 +31,6 @@ than 5 terms, a rotation that is not a rotation, a missing image size.
 from __future__ import annotations
 
 import os
-import tomllib
 from pathlib import Path
 from typing import Literal
 
@@ -140,59 +139,11 @@ def load_calibration(path: str | os.PathLike) -> Calibration:
         return _load_easymocap(path if path.is_dir() else path.parent)
     suffix = path.suffix.lower()
     if suffix == ".toml":
-        return load_camera_tables_toml(path)
+        return Calibration.load_toml(path)
     if suffix in (".yml", ".yaml", ".xml", ".json"):
         return Calibration.load_opencv_yaml(path)
     raise CalibrationFileError(path, "", f"unknown calibration file type {suffix or '(no extension)'!r}",
                                "give an OpenCV .yml, an anipose calibration.toml, a Pose2Sim Calib.toml or an EasyMocap folder (intri.yml + extri.yml)")
-
-
-def load_camera_tables_toml(path: Path) -> Calibration:
-    """An anipose ``calibration.toml`` or a Pose2Sim ``Calib.toml``: every table but
-    ``[metadata]`` is a camera, in file order (Pose2Sim's) which for anipose's keys
-    (``cam_0`` ...) is also their numeric order."""
-    if not path.is_file():
-        raise CalibrationFileError(path, "", "file not found", "pass the path of a calibration .toml")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise CalibrationFileError(path, "", f"invalid TOML: {exc}", "fix the syntax at the position given") from None
-    keys = [k for k, v in doc.items() if k != "metadata" and isinstance(v, dict)]
-    if all(k.startswith("cam_") and k[4:].isdigit() for k in keys):
-        keys.sort(key=lambda k: int(k[4:]))  # anipose: cam_0, cam_1, ..., cam_10 (not string order)
-    cams = [_camera_from_table(path, k, doc[k]) for k in keys]
-    if not cams:
-        raise CalibrationFileError(path, "cam_0", "missing", "the file has no camera tables ([cam_0] or [<camera name>])")
-    try:
-        return Calibration(tuple(cams))
-    except ValueError as exc:
-        raise CalibrationFileError(path, "name", str(exc), "give every camera its own name") from None
-
-
-def _camera_from_table(path: Path, key: str, tab: dict) -> Camera:
-    for field_name in ("size", "matrix", "distortions", "rotation", "translation"):
-        if field_name not in tab:
-            raise CalibrationFileError(path, f"{key}.{field_name}", "missing",
-                                       "camera tables need size, matrix, distortions, rotation, translation")
-    if tab.get("fisheye", False):
-        raise CalibrationFileError(path, f"{key}.fisheye", f"value {tab['fisheye']!r}",
-                                   "fisheye (OpenCV's equidistant model) cannot be read as the pinhole + k1 k2 p1 p2 k3 model "
-                                   "the bench and mocap use; recalibrate with fisheye = false")
-    try:
-        dist = np.asarray(tab["distortions"], dtype=np.float64).ravel()
-        if dist.size not in (4, 5):
-            raise ValueError(f"{dist.size} distortion terms (the pinhole model has 4 or 5: k1 k2 p1 p2 [k3])")
-        rvec = np.asarray(tab["rotation"], dtype=np.float64)
-        if rvec.size != 3:
-            raise ValueError(f"rotation has {rvec.size} values (a Rodrigues vector has 3)")
-        R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
-        size = tab["size"]
-        if len(size) != 2:
-            raise ValueError(f"size has {len(size)} values; it is [width, height]")
-        return Camera(str(tab.get("name", key)), (int(size[0]), int(size[1])), tab["matrix"], dist, R, tab["translation"])
-    except (ValueError, TypeError, cv2.error) as exc:
-        raise CalibrationFileError(path, key, str(exc).splitlines()[0],
-                                   "check the array sizes (matrix 3x3, distortions 4 or 5, rotation 3, translation 3)") from None
 
 
 def _read_names(fs: cv2.FileStorage, path: Path) -> list[str]:
