@@ -48,7 +48,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import InputFileError, MocapInputError
-from mocap.skeleton import SkeletonFit
+from mocap.skeleton import KinematicTree, SkeletonFit
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 
@@ -390,59 +390,19 @@ def read_c3d(
     CaptureTrajectories
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputFileError(path, "no such file", "give the path of an existing .c3d file")
-    if up_axis not in ("auto", "x", "y", "z"):
-        raise MocapInputError(f"{path}: up_axis must be 'auto', 'x', 'y' or 'z', got {up_axis!r}")
-    try:
-        c3d = ezc3d.c3d(str(path))
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise InputFileError(path, f"not a readable C3D file ({exc})", "give a C3D file (e.g. one written by write_c3d, Vicon, Qualisys)") from None
+    c3d = _open_c3d(path, up_axis)
     params = c3d["parameters"]
     point = params["POINT"]
-    labels = _c3d_strings(point, "LABELS")
-    units = str(point["UNITS"]["value"][0]).strip().lower() if "UNITS" in point and len(point["UNITS"]["value"]) else "mm"
-    if units not in _UNIT_TO_M:
-        raise InputFileError(path, f"POINT:UNITS is {units!r}", f"use a file in one of {sorted(_UNIT_TO_M)}", field="POINT:UNITS")
-    rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
-    if not (np.isfinite(rate) and rate > 0):
-        raise InputFileError(path, f"POINT:RATE is {rate!r}", "give a file with a positive point rate", field="POINT:RATE")
-    pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M', F)
-    n = min(pts.shape[1], len(labels))
-    labels = labels[:n]
-    xyz = pts[:3, :n].transpose(2, 1, 0) * _UNIT_TO_M[units]  # (F, M, 3), file axes
-    residual = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)[0, :n].T  # (F, M)
-    invalid = (residual < 0) | ~np.isfinite(xyz).all(axis=2)
-    xyz[invalid] = np.nan
-    F = xyz.shape[0]
+    units, rate = _c3d_units_and_rate(path, point)
+    labels, xyz, residual, invalid = _c3d_points(c3d, _c3d_strings(point, "LABELS"), units)
+    F, n = invalid.shape
     ours = "SIMBENCH" in params and "RESIDUAL_UNITS" in params["SIMBENCH"]
 
     if physical_only and not ours:  # write_c3d's files hold the pipeline's labelled markers only: kept whole
-        groups = [g for g in _OUTPUT_GROUPS]
-        if "TYPE_GROUPS" in point:  # pairs (group, type): ANGLES, ANGLE, FORCES, FORCE, ...
-            groups += [g.strip() for g in list(point["TYPE_GROUPS"]["value"])[0::2]]
-        output_groups: dict[str, str] = {}
-        for g in dict.fromkeys(groups):
-            if g in point and g not in ("LABELS", "DESCRIPTIONS", "UNITS"):
-                for name in _c3d_strings(point, g):
-                    output_groups.setdefault(name, g)
-        kept, set_aside = _classify_points(labels, ~invalid, output_groups)
+        kept, set_aside = _classify_points(labels, ~invalid, _c3d_output_groups(point))
     else:
         kept, set_aside = list(range(n)), {}
-
-    if up_axis != "auto":
-        hint, why = up_axis, f"up_axis = {up_axis!r} given by the caller"
-    elif "Y_SCREEN" in point and len(point["Y_SCREEN"]["value"]) and str(point["Y_SCREEN"]["value"][0]).strip()[-1:].lower() in "xyz":
-        y_screen = str(point["Y_SCREEN"]["value"][0]).strip()
-        hint, why = y_screen[-1].lower(), f"POINT:Y_SCREEN = {y_screen!r}"
-    elif ours:
-        hint, why = "z", "written by simbench (world axes, Z up)"
-    else:
-        hint, why = None, ""
-    if hint is not None:
-        up = hint
-    else:
-        up, why = _decide_up_axis(xyz[:, kept], "no POINT:Y_SCREEN", "z")  # Z: the usual C3D lab frame
+    up, why = _c3d_up_axis(point, up_axis, ours, xyz[:, kept])
     xyz = _rotate_to_z_up(xyz, up)
 
     if ours and "FIRST_TIME_S" in params["SIMBENCH"]:
@@ -460,6 +420,86 @@ def read_c3d(
         [labels[i] for i in kept], xyz[:, kept], times, filled=filled[:, kept], residual_px=residual_px[:, kept],
         set_aside=set_aside, source_units=units, source_up_axis=up, up_axis_reason=why, point_rate_hz=rate,
     )
+
+
+def _open_c3d(path: Path, up_axis: str) -> ezc3d.c3d:
+    """The parsed C3D file at ``path`` (ezc3d), after checking that it exists and ``up_axis`` is known."""
+    if not path.is_file():
+        raise InputFileError(path, "no such file", "give the path of an existing .c3d file")
+    if up_axis not in ("auto", "x", "y", "z"):
+        raise MocapInputError(f"{path}: up_axis must be 'auto', 'x', 'y' or 'z', got {up_axis!r}")
+    try:
+        return ezc3d.c3d(str(path))
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise InputFileError(path, f"not a readable C3D file ({exc})", "give a C3D file (e.g. one written by write_c3d, Vicon, Qualisys)") from None
+
+
+def _c3d_units_and_rate(path: Path, point: dict) -> tuple[str, float]:
+    """``POINT:UNITS`` (lower case, ``"mm"`` when absent; one of :data:`_UNIT_TO_M`) and ``POINT:RATE`` (Hz, > 0)."""
+    units = str(point["UNITS"]["value"][0]).strip().lower() if "UNITS" in point and len(point["UNITS"]["value"]) else "mm"
+    if units not in _UNIT_TO_M:
+        raise InputFileError(path, f"POINT:UNITS is {units!r}", f"use a file in one of {sorted(_UNIT_TO_M)}", field="POINT:UNITS")
+    rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputFileError(path, f"POINT:RATE is {rate!r}", "give a file with a positive point rate", field="POINT:RATE")
+    return units, rate
+
+
+def _c3d_points(c3d: ezc3d.c3d, labels: list[str], units: str) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """The file's points in metres (file axes), invalid samples NaN.
+
+    Returns
+    -------
+    labels : list[str], length N
+        The labels that have a point (``N = min(points, labels)``).
+    xyz : (F, N, 3) float
+        Metres, the file's axes; NaN where ``invalid``.
+    residual : (F, N) float
+        The 4th word as stored (``< 0`` invalid, ``0`` filled, ``> 0`` measured).
+    invalid : (F, N) bool
+        Negative residual or a non-finite coordinate.
+    """
+    pts = np.asarray(c3d["data"]["points"], dtype=np.float64)  # (4, M', F)
+    n = min(pts.shape[1], len(labels))
+    labels = labels[:n]
+    xyz = pts[:3, :n].transpose(2, 1, 0) * _UNIT_TO_M[units]  # (F, M, 3), file axes
+    residual = np.asarray(c3d["data"]["meta_points"]["residuals"], dtype=np.float64)[0, :n].T  # (F, M)
+    invalid = (residual < 0) | ~np.isfinite(xyz).all(axis=2)
+    xyz[invalid] = np.nan
+    return labels, xyz, residual, invalid
+
+
+def _c3d_output_groups(point: dict) -> dict[str, str]:
+    """``label -> group`` for every label listed in a model-output group of ``POINT``.
+
+    The groups are :data:`_OUTPUT_GROUPS` and those ``POINT:TYPE_GROUPS`` names (pairs
+    ``group, type``); a label in several keeps the first.
+    """
+    groups = [g for g in _OUTPUT_GROUPS]
+    if "TYPE_GROUPS" in point:  # pairs (group, type): ANGLES, ANGLE, FORCES, FORCE, ...
+        groups += [g.strip() for g in list(point["TYPE_GROUPS"]["value"])[0::2]]
+    output_groups: dict[str, str] = {}
+    for g in dict.fromkeys(groups):
+        if g in point and g not in ("LABELS", "DESCRIPTIONS", "UNITS"):
+            for name in _c3d_strings(point, g):
+                output_groups.setdefault(name, g)
+    return output_groups
+
+
+def _c3d_up_axis(point: dict, up_axis: str, ours: bool, xyz_kept: np.ndarray) -> tuple[str, str]:
+    """The file's up axis (``"x"``, ``"y"`` or ``"z"``) and why (see :func:`read_c3d`, **Axes**).
+
+    The caller's ``up_axis`` unless ``"auto"``, else ``POINT:Y_SCREEN``'s letter, else Z for
+    simbench's own files (``ours``), else the data ``xyz_kept (F, M, 3)`` metres decide.
+    """
+    if up_axis != "auto":
+        return up_axis, f"up_axis = {up_axis!r} given by the caller"
+    if "Y_SCREEN" in point and len(point["Y_SCREEN"]["value"]) and str(point["Y_SCREEN"]["value"][0]).strip()[-1:].lower() in "xyz":
+        y_screen = str(point["Y_SCREEN"]["value"][0]).strip()
+        return y_screen[-1].lower(), f"POINT:Y_SCREEN = {y_screen!r}"
+    if ours:
+        return "z", "written by simbench (world axes, Z up)"
+    return _decide_up_axis(xyz_kept, "no POINT:Y_SCREEN", "z")  # Z: the usual C3D lab frame
 
 
 def _c3d_strings(group: dict, name: str) -> list[str]:
@@ -561,6 +601,29 @@ def read_trc(
     path = Path(path)
     if axes not in ("opensim", "pose2sim", "world", "auto"):
         raise MocapInputError(f"{path}: axes must be 'opensim' (Y up), 'pose2sim' (Y up, Pose2Sim's), 'world' (Z up) or 'auto', got {axes!r}")
+    lines = _trc_lines(path)
+    units, rate, labels = _trc_header(path, lines)
+    n_markers = len(labels)
+    data = _trc_rows(path, lines[5:], 2 + 3 * n_markers)
+    F = len(data)
+    xyz = data[:, 2:].reshape(F, n_markers, 3) * _UNIT_TO_M[units]
+    times, rate = _trc_times(data[:, 1], rate)
+    if physical_only:
+        kept, set_aside = _classify_points(labels, np.isfinite(xyz).all(axis=2), {})
+    else:
+        kept, set_aside = list(range(n_markers)), {}
+    if axes == "auto":
+        up, why = _decide_up_axis(xyz[:, kept], "axes = 'auto' (TRC does not say)", "y")  # Y: OpenSim's convention
+    else:
+        up = "y" if axes in ("opensim", "pose2sim") else "z"
+        why = f"axes = {axes!r} given by the caller"
+    xyz = pose2sim_to_world(xyz) if axes == "pose2sim" else _rotate_to_z_up(xyz, up)
+    return CaptureTrajectories([labels[i] for i in kept], xyz[:, kept], times, set_aside=set_aside, source_units=units,
+                               source_up_axis=up, up_axis_reason=why, point_rate_hz=float(rate))
+
+
+def _trc_lines(path: Path) -> list[str]:
+    """The TRC file's lines (at least 5, the first ``PathFileType ...``)."""
     try:
         lines = path.read_text().splitlines()
     except OSError as exc:
@@ -569,6 +632,12 @@ def read_trc(
         raise InputFileError(path, "not a text file", "give a TRC (tab-separated text) file") from None
     if len(lines) < 5 or not lines[0].startswith("PathFileType"):
         raise InputFileError(path, "first line does not start with PathFileType", "give a TRC file (OpenSim / Motion Analysis format)", field="PathFileType")
+    return lines
+
+
+def _trc_header(path: Path, lines: list[str]) -> tuple[str, float, list[str]]:
+    """From a TRC's header lines 2-4: ``Units`` (lower case, a key of :data:`_UNIT_TO_M`),
+    ``DataRate`` (Hz; NaN if not a number) and the marker labels (``NumMarkers`` of them)."""
     keys = [k for k in lines[1].split("\t") if k.strip()]
     values = [v for v in lines[2].split("\t") if v.strip()]
     meta = dict(zip((k.strip() for k in keys), (v.strip() for v in values)))
@@ -589,8 +658,15 @@ def read_trc(
     labels = [t.strip() for t in lines[3].split("\t")[2:] if t.strip()]
     if len(labels) != n_markers:
         raise InputFileError(path, f"{len(labels)} marker names on line 4 but NumMarkers = {n_markers}", "make the header agree with the columns", field="NumMarkers")
-    rows = [ln.rstrip("\r") for ln in lines[5:] if ln.strip()]
-    n_cols = 2 + 3 * n_markers
+    return units, rate, labels
+
+
+def _trc_rows(path: Path, body: list[str], n_cols: int) -> np.ndarray:
+    """The data rows (the lines after the 5-line header; blank ones skipped) as ``(F, n_cols)`` floats.
+
+    Columns ``Frame#, Time, X1, Y1, Z1, ...`` in the file's units; empty or missing fields NaN.
+    """
+    rows = [ln.rstrip("\r") for ln in body if ln.strip()]
     data = np.full((len(rows), n_cols), np.nan)
     for i, row in enumerate(rows):
         fields = row.split("\t")[:n_cols]
@@ -598,27 +674,23 @@ def read_trc(
             data[i, : len(fields)] = [float(v) if v.strip() else np.nan for v in fields]
         except ValueError:
             raise InputFileError(path, f"data row {i + 1} has a field that is not a number", "fix or remove that row", field=f"line {i + 7}") from None
-    F = len(rows)
-    xyz = data[:, 2:].reshape(F, n_markers, 3) * _UNIT_TO_M[units]
-    times = data[:, 1]
+    return data
+
+
+def _trc_times(times: np.ndarray, rate: float) -> tuple[np.ndarray, float]:
+    """The frame times (s) and rate (Hz) of a TRC's ``Time (F,)`` column and ``DataRate``.
+
+    ``Time[0] + k / DataRate`` when the column agrees with it within half a frame, else the
+    column as written; with no usable ``DataRate`` the rate comes from the median time step.
+    """
+    F = len(times)
     if np.isfinite(rate) and rate > 0 and F and np.isfinite(times).all():
         grid = times[0] + np.arange(F) / rate
         if np.abs(times - grid).max() < 0.5 / rate:
             times = grid
     else:
         rate = 1.0 / np.median(np.diff(times)) if F > 1 else float("nan")
-    if physical_only:
-        kept, set_aside = _classify_points(labels, np.isfinite(xyz).all(axis=2), {})
-    else:
-        kept, set_aside = list(range(n_markers)), {}
-    if axes == "auto":
-        up, why = _decide_up_axis(xyz[:, kept], "axes = 'auto' (TRC does not say)", "y")  # Y: OpenSim's convention
-    else:
-        up = "y" if axes in ("opensim", "pose2sim") else "z"
-        why = f"axes = {axes!r} given by the caller"
-    xyz = pose2sim_to_world(xyz) if axes == "pose2sim" else _rotate_to_z_up(xyz, up)
-    return CaptureTrajectories([labels[i] for i in kept], xyz[:, kept], times, set_aside=set_aside, source_units=units,
-                               source_up_axis=up, up_axis_reason=why, point_rate_hz=float(rate))
+    return times, rate
 
 
 def _axes_out(xyz: np.ndarray, axes: str, path: Path) -> np.ndarray:
@@ -730,6 +802,31 @@ def write_bvh(
     Path
     """
     path = Path(path)
+    P = _bvh_axes(path, fit, subject, up_axis)
+    rate = _rate(fit.times, rate_hz, str(path))
+    qpos = _nearest_solved_qpos(fit.qpos, fit.valid)
+    channel_names, columns = _bvh_root_channels(qpos, P)
+    for b in range(1, len(fit.tree.body_names)):
+        names, cols = _bvh_joint_channels(b, fit.tree, qpos, P, path)
+        channel_names.append(names)
+        columns.append(cols)
+    lines = ["HIERARCHY", *_bvh_hierarchy(fit.tree, channel_names, _bvh_end_sites(fit.tree, subject), P)]
+    lines += ["MOTION", f"Frames: {len(fit.times)}", f"Frame Time: {1.0 / rate:.8f}"]
+    motion = np.concatenate(columns, axis=1)
+    body = pd.DataFrame(motion).to_csv(sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
+    with _atomic_target(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n" + body)
+    return path
+
+
+def _bvh_axes(path: Path, fit: SkeletonFit, subject: SubjectModel, up_axis: str) -> np.ndarray:
+    """Check that ``fit`` can be written as BVH for ``subject``; the axis change for ``up_axis``.
+
+    Returns
+    -------
+    P : (3, 3) float
+        ``v_bvh = P @ v_world`` (Y up: :data:`_Z_UP_TO_Y_UP`; Z up: the identity).
+    """
     tree = fit.tree
     if tree.body_names != subject.body_names:
         raise MocapInputError(f"{path}: the fit's bodies {tree.body_names} are not the subject's {subject.body_names}; write the BVH with the subject the fit was solved with")
@@ -743,62 +840,109 @@ def write_bvh(
         raise MocapInputError(f"{path}: up_axis must be 'y' or 'z', got {up_axis!r}")
     if not fit.valid.any():
         raise MocapInputError(f"{path}: no frame of the fit was solved, nothing to write; check the marker labels and min_markers")
-    rate = _rate(fit.times, rate_hz, str(path))
-    F = len(fit.times)
-    J = len(tree.body_names)
-    # Repeat the nearest solved frame where the fit has none.
-    ok = np.flatnonzero(fit.valid)
+    return P
+
+
+def _nearest_solved_qpos(qpos: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``qpos (F, nq)`` with each unsolved frame replaced by the nearest solved one (the earlier on a tie).
+
+    ``valid (F,) bool`` marks the solved frames; at least one must be. Returns ``(F, nq)``.
+    """
+    F = len(valid)
+    ok = np.flatnonzero(valid)
     nearest = ok[np.clip(np.searchsorted(ok, np.arange(F)), 0, len(ok) - 1)]
     left = ok[np.clip(np.searchsorted(ok, np.arange(F)) - 1, 0, len(ok) - 1)]
     use = np.where(np.abs(left - np.arange(F)) <= np.abs(nearest - np.arange(F)), left, nearest)
-    qpos = fit.qpos[use]
+    return qpos[use]
 
-    # Per body: list of (channel axis index, source column in `values`, sign).
-    children: dict[int, list[int]] = {b: [] for b in range(J)}
-    for b in range(1, J):
-        children[int(tree.parents[b])].append(b)
-    channel_names: list[list[str]] = []
-    columns: list[np.ndarray] = []
+
+def _bvh_root_channels(qpos: np.ndarray, P: np.ndarray) -> tuple[list[list[str]], list[np.ndarray]]:
+    """The root's six channels from the free joint of ``qpos (F, nq)`` (position m, quaternion w-first).
+
+    Returns ``([names], [values (F, 6)])``: position in cm in BVH axes (``P @ x``), then the
+    ``Zrotation Yrotation Xrotation`` Euler angles (degrees) of ``P R P^T``; lists so that the
+    joints' channels can be appended.
+    """
     root_pos = qpos[:, :3] @ P.T * 100.0  # cm
     root_R = P @ Rotation.from_quat(qpos[:, 3:7], scalar_first=True).as_matrix() @ P.T
     root_euler = np.degrees(Rotation.from_matrix(root_R).as_euler("ZYX"))  # R = Rz Ry Rx
-    channel_names.append(["Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"])
-    columns.append(np.concatenate([root_pos, root_euler], axis=1))
-    angles_deg = np.degrees(qpos[:, 7:])
-    for b in range(1, J):
-        hinges = np.flatnonzero(tree.hinge_bodies == b)
-        names, cols, used = [], [], set()
-        for h in hinges:
-            k, sign = _hinge_channel(tree.hinge_axes[h], P, f"{path}: hinge {tree.hinge_names[h]!r}")
-            if k in used:
-                raise MocapInputError(f"{path}: body {tree.body_names[b]!r} has two hinges about the same axis; BVH cannot write that")
-            used.add(k)
-            names.append(f"{_AXIS_NAMES[k]}rotation")
-            cols.append(sign * angles_deg[:, h])
-        for k in range(3):
-            if k not in used:
-                names.append(f"{_AXIS_NAMES[k]}rotation")
-                cols.append(np.zeros(F))
-        channel_names.append(names)
-        columns.append(np.stack(cols, axis=1))
+    names = ["Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"]
+    return [names], [np.concatenate([root_pos, root_euler], axis=1)]
 
+
+def _bvh_joint_channels(b: int, tree: KinematicTree, qpos: np.ndarray, P: np.ndarray, path: Path) -> tuple[list[str], np.ndarray]:
+    """Body ``b``'s three rotation channels: its hinges (qpos order), then its missing axes at 0.
+
+    Parameters
+    ----------
+    b : int
+        Body index (not the root).
+    qpos : (F, nq) float
+        Free joint (7) then hinge angles in radians.
+    P : (3, 3) float
+        World -> BVH axes.
+
+    Returns
+    -------
+    names : list[str], length 3
+        ``"<axis>rotation"`` channel names.
+    values : (F, 3) float
+        Degrees, signed for the BVH axis each hinge maps to.
+    """
+    angles_deg = np.degrees(qpos[:, 7:])
+    names, cols, used = [], [], set()
+    for h in np.flatnonzero(tree.hinge_bodies == b):
+        k, sign = _hinge_channel(tree.hinge_axes[h], P, f"{path}: hinge {tree.hinge_names[h]!r}")
+        if k in used:
+            raise MocapInputError(f"{path}: body {tree.body_names[b]!r} has two hinges about the same axis; BVH cannot write that")
+        used.add(k)
+        names.append(f"{_AXIS_NAMES[k]}rotation")
+        cols.append(sign * angles_deg[:, h])
+    for k in range(3):
+        if k not in used:
+            names.append(f"{_AXIS_NAMES[k]}rotation")
+            cols.append(np.zeros(len(qpos)))
+    return names, np.stack(cols, axis=1)
+
+
+def _bvh_end_sites(tree: KinematicTree, subject: SubjectModel) -> dict[int, np.ndarray]:
+    """``body index -> (3,) end-site offset (m, body frame)`` for every leaf body.
+
+    The leaf's marker farthest from its origin, else 10 cm along its bone from the parent
+    (straight up for a zero-length bone).
+    """
     marker_offsets: dict[str, list[np.ndarray]] = {}
     for m in subject.markers:
         marker_offsets.setdefault(m.body, []).append(m.offset_m)
-
-    def end_site(b: int) -> np.ndarray:
+    has_child = set(int(p) for p in tree.parents[1:])
+    sites: dict[int, np.ndarray] = {}
+    for b in range(len(tree.body_names)):
+        if b in has_child:
+            continue
         offs = marker_offsets.get(tree.body_names[b])
         if offs:
             offs_arr = np.array(offs)
-            return offs_arr[int(np.argmax(np.linalg.norm(offs_arr, axis=1)))]
-        bone = tree.offsets_m[b]
-        n = np.linalg.norm(bone)
-        return bone / n * 0.1 if n > 0 else np.array([0.0, 0.0, 0.1])
+            sites[b] = offs_arr[int(np.argmax(np.linalg.norm(offs_arr, axis=1)))]
+        else:
+            bone = tree.offsets_m[b]
+            n = np.linalg.norm(bone)
+            sites[b] = bone / n * 0.1 if n > 0 else np.array([0.0, 0.0, 0.1])
+    return sites
+
+
+def _bvh_hierarchy(tree: KinematicTree, channel_names: list[list[str]], end_sites: dict[int, np.ndarray], P: np.ndarray) -> list[str]:
+    """The ``HIERARCHY`` section's lines after its keyword: ROOT/JOINT blocks, depth first.
+
+    ``channel_names[b]`` are body ``b``'s channels; ``end_sites[b] (3,)`` metres for each leaf;
+    offsets are written in cm in BVH axes (``P @ v``).
+    """
+    children: dict[int, list[int]] = {b: [] for b in range(len(tree.body_names))}
+    for b in range(1, len(tree.body_names)):
+        children[int(tree.parents[b])].append(b)
+    lines: list[str] = []
 
     def fmt(v: np.ndarray) -> str:
         return " ".join(f"{x:.6f}" for x in (P @ v) * 100.0)
-
-    lines = ["HIERARCHY"]
 
     def emit(b: int, depth: int) -> None:
         pad = "  " * depth
@@ -814,14 +958,9 @@ def write_bvh(
         else:
             lines.append(f"{pad}  End Site")
             lines.append(f"{pad}  {{")
-            lines.append(f"{pad}    OFFSET {fmt(end_site(b))}")
+            lines.append(f"{pad}    OFFSET {fmt(end_sites[b])}")
             lines.append(f"{pad}  }}")
         lines.append(f"{pad}}}")
 
     emit(0, 0)
-    lines += ["MOTION", f"Frames: {F}", f"Frame Time: {1.0 / rate:.8f}"]
-    motion = np.concatenate(columns, axis=1)
-    body = pd.DataFrame(motion).to_csv(sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
-    with _atomic_target(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n" + body)
-    return path
+    return lines
