@@ -2,8 +2,8 @@
 
 Pipeline (each step in :mod:`mocap.calib`):
 
-1. find the board in every image / video frame of every camera
-   (:func:`mocap.calib.board_detection.detect_board`), keeping why each failed;
+1. find the board in every image / video frame of every camera (:mod:`mocap.calib.views`
+   reads them, :func:`mocap.calib.board_detection.detect_board`), keeping why each failed;
 2. per camera, Zhang's method (:func:`mocap.calib.intrinsics.calibrate_intrinsics`),
    after checking the views are not all parallel, dropping outlier views;
 3. extrinsics from views that cameras share, chained over a maximum spanning tree of
@@ -25,12 +25,12 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Mapping, Sequence, Union
+from typing import Mapping, Sequence
 
 import cv2
 import numpy as np
 
-from mocap.calib.board_detection import BoardDetection, DetectionSettings, detect_board
+from mocap.calib.board_detection import BoardDetection, DetectionSettings
 from mocap.calib.boards import BoardSpec
 from mocap.calib.bundle_adjustment import BundleAdjustmentOptions, bundle_adjust
 from mocap.calib.errors import BoardNotFoundError, CalibrationError, DisconnectedCamerasError, ViewFailure
@@ -38,15 +38,17 @@ from mocap.calib.extrinsics import board_poses_pnp, initial_rig
 from mocap.calib.geometry import intrinsics_from_vector, intrinsics_vector
 from mocap.calib.intrinsics import IntrinsicsOptions, calibrate_intrinsics
 from mocap.calib.observations import BoardObservations, WandObservations
+from mocap.calib.views import IMAGE_SUFFIXES, VIDEO_SUFFIXES, ViewSource, detect_board_views, iter_views
 from mocap.calib.wand import WandSpec, label_collinear_wand, triangulate_wand, wand_initial_rig
 from mocap.calib.world_frame import camera_transform, floor_transform, transform_cameras, transform_points, transform_poses
 from mocap.calibration import Calibration, Camera
 from mocap.errors import InputFileError
 
-ViewSource = Union[str, os.PathLike, Sequence[Union[str, os.PathLike, np.ndarray]]]
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm")
-VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+__all__ = [
+    "CalibrationResult", "calibrate_from_observations", "calibrate_cameras", "write_calibration", "run_calibrate_cli",
+    # reading the views, public here too (mocap.calib.views)
+    "ViewSource", "IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "iter_views", "detect_board_views",
+]
 
 
 @dataclass
@@ -123,110 +125,6 @@ class CalibrationResult:
             "bundle_adjustment": self.bundle_adjustment,
             "written": [str(p) for p in self.written],
         }
-
-
-# ---------------------------------------------------------------------- reading views
-def _list_images(directory: Path) -> list[Path]:
-    files = sorted(p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise InputFileError(directory, "no images found in this folder",
-                             f"put the calibration pictures ({', '.join(IMAGE_SUFFIXES)}) there or pass a video file")
-    return files
-
-
-def iter_views(source: ViewSource, frame_step: int = 1) -> Iterator[tuple[str, np.ndarray]]:
-    """Yield ``(label, image)`` for a folder, a video, a list of files or in-memory images.
-
-    Parameters
-    ----------
-    source
-        A folder of images (sorted by name), a video file (every ``frame_step``-th
-        frame), or a sequence of image paths / ``(H, W[, 3])`` arrays.
-    frame_step : int
-        For videos: use one frame in ``frame_step``.
-    """
-    if isinstance(source, (str, os.PathLike)):
-        path = Path(source)
-        if path.is_dir():
-            yield from iter_views(_list_images(path))
-            return
-        if not path.exists():
-            raise InputFileError(path, "file or folder not found", "pass a folder of images, a video file, or a list of images")
-        if path.suffix.lower() in IMAGE_SUFFIXES:
-            yield from iter_views([path])
-            return
-        cap = cv2.VideoCapture(str(path))
-        if not cap.isOpened():
-            raise InputFileError(path, "cannot be opened as a video",
-                                 f"use a video OpenCV can read ({', '.join(VIDEO_SUFFIXES)}) or a folder of images")
-        try:
-            i = 0
-            while True:
-                ok, frame = cap.read()
-                if not ok:
-                    break
-                if i % max(1, int(frame_step)) == 0:
-                    yield f"{path.name}#frame {i}", frame
-                i += 1
-        finally:
-            cap.release()
-        return
-    for k, item in enumerate(source):
-        if isinstance(item, np.ndarray):
-            yield f"image {k}", item
-            continue
-        p = Path(item)
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise InputFileError(p, "not a readable image" if p.exists() else "file not found",
-                                 "check the path and that the file is a PNG/JPEG image")
-        yield p.name, img
-
-
-def detect_board_views(inputs: Mapping[str, ViewSource], board: BoardSpec, settings: DetectionSettings | None = None,
-                       frame_step: int = 1) -> tuple[BoardObservations, dict[str, list[BoardDetection]]]:
-    """Find the board in every view of every camera.
-
-    Returns
-    -------
-    observations : BoardObservations
-        ``corners_px (C, V, N, 2)``, NaN where a view had no usable board.
-    detections : dict[str, list[BoardDetection]]
-        Per camera, the detection (or failure and its cause) of every view.
-    """
-    if not inputs:
-        raise InputFileError(Path("."), "no cameras given", "pass at least one camera as name=folder_or_video")
-    names = list(inputs)
-    dets: dict[str, list[BoardDetection]] = {}
-    labels: dict[str, list[str]] = {}
-    for name in names:
-        dets[name], labels[name] = [], []
-        for label, image in iter_views(inputs[name], frame_step):
-            dets[name].append(detect_board(image, board, settings))
-            labels[name].append(label)
-        if not dets[name]:
-            raise InputFileError(Path(str(inputs[name])) if isinstance(inputs[name], (str, os.PathLike)) else Path(name),
-                                 f"camera {name!r} has no images or frames", "check the folder or video")
-    counts = {n: len(d) for n, d in dets.items()}
-    if len(set(counts.values())) > 1:
-        src = inputs[names[0]]
-        raise InputFileError(Path(str(src)) if isinstance(src, (str, os.PathLike)) else Path(names[0]),
-                             "cameras have different numbers of views: " + ", ".join(f"{n} {k}" for n, k in counts.items()),
-                             "give every camera the same number of synchronised images or frames "
-                             "(view i of each camera must be the same moment)")
-    V = counts[names[0]]
-    corners = np.full((len(names), V, board.n_corners, 2), np.nan)
-    sizes = []
-    for c, name in enumerate(names):
-        sizes.append(dets[name][0].image_size)
-        for v, d in enumerate(dets[name]):
-            if d.image_size != sizes[-1]:
-                raise InputFileError(Path(labels[name][v]), f"image size {d.image_size} differs from the camera's first "
-                                     f"view {sizes[-1]}", f"use one resolution per camera ({name!r})")
-            if d.found:
-                corners[c, v, d.corner_ids] = d.corners_px
-    obs = BoardObservations(board, names, sizes, corners, [labels[n] for n in names])
-    return obs, dets
 
 
 # ---------------------------------------------------------------------- calibration
@@ -375,8 +273,60 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
     bopt = ba_options if ba_options is not None else BundleAdjustmentOptions(
         fix_aspect_ratio=iopt.fix_aspect_ratio, fix_principal_point=iopt.fix_principal_point, zero_tangent=iopt.zero_tangent)
     names = obs.camera_names
-    C, V = obs.n_cameras, obs.n_views
-    if C > 1 and not obs.board.orientation_unique:
+    ref, floor_index, wand_px = _check_setup(obs, wand, wand_observations, reference_camera, floor_view, world_camera)
+    usable = obs.usable(iopt.min_corners)
+    rejected = _detection_rejections(obs, usable, detections)
+
+    # 1. intrinsics -------------------------------------------------------------
+    intr, k3_free, zhang_rms, use = _intrinsics_per_camera(obs, usable, iopt, known_intrinsics, detections, rejected)
+    Ks = np.stack([intrinsics_from_vector(p)[0] for p in intr])
+    dists = np.stack([intrinsics_from_vector(p)[1] for p in intr])
+    poses = board_poses_pnp(obs.corners_px, obs.object_points, Ks, dists, use)
+    use &= poses.valid
+
+    # 2. extrinsics ----------------------------------------------------------------
+    R_cw, t_cw, R_wb, t_wb = _initial_extrinsics(poses, names, ref, intr, wand, wand_px)
+
+    # 3. bundle adjustment -----------------------------------------------------------
+    rig = _Rig(intr, R_cw, t_cw, R_wb, t_wb, final_rms=dict(zhang_rms))
+    if obs.n_cameras > 1 or wand_px is not None:
+        rig = _refine(obs, rig, ref, k3_free, use, wand, wand_px, bopt)
+    else:
+        rig.view_rms = {names[0]: _single_camera_view_rms(obs, poses, intr[0], use[0])}
+
+    # 4. world frame ---------------------------------------------------------------
+    world = _to_world_frame(obs, rig, floor_index, world_camera, ref)
+    return CalibrationResult(
+        calibration=Calibration(tuple(Camera(n, obs.image_sizes[c], *intrinsics_from_vector(rig.intr[c]), rig.R_cw[c], rig.t_cw[c])
+                                      for c, n in enumerate(names))),
+        reprojection_rms_px=rig.final_rms,
+        intrinsics_rms_px=zhang_rms,
+        view_rms_px=rig.view_rms if rig.view_rms is not None else {n: np.full(obs.n_views, np.nan) for n in names},
+        views_used={n: [obs.view_labels[c][v] for v in np.flatnonzero(use[c])] for c, n in enumerate(names)},
+        views_rejected=rejected,
+        board_poses_world=_homogeneous(rig.R_wb, rig.t_wb),
+        wand_points_world=rig.wand_pts,
+        wand_distance_rms_mm=rig.wand_rms_mm,
+        world_frame=world,
+        bundle_adjustment=rig.ba_info,
+    )
+
+
+def _check_setup(obs: BoardObservations, wand: WandSpec | None, wand_observations: WandObservations | None,
+                 reference_camera: str | None, floor_view: int | str | None,
+                 world_camera: str | None) -> tuple[int, int | None, np.ndarray | None]:
+    """Refuse what cannot work before any work; the indices the calibration needs.
+
+    Returns
+    -------
+    ref : int
+        Index of the reference camera (default 0).
+    floor_index : int or None
+        View index of ``floor_view``.
+    wand_px : (C, F, 3, 2) float or None
+        The wand's markers in ``obs``' camera order, pixels.
+    """
+    if obs.n_cameras > 1 and not obs.board.orientation_unique:
         w, h = obs.board.squares
         raise CalibrationError(
             f"the {obs.board.describe()} has {w}x{h} squares and looks the same turned by 180 deg, so cameras may "
@@ -388,88 +338,93 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
         obs.camera_index(world_camera)
     wand_px = None
     if wand is not None and wand_observations is not None:
-        wand_px = wand_observations.reordered(names).markers_px
+        wand_px = wand_observations.reordered(obs.camera_names).markers_px
     elif (wand is None) != (wand_observations is None):
         raise CalibrationError("wand refinement needs both the wand's distances (WandSpec / --wand-distances-mm) and its "
                                "2D marker observations (--wand-file)")
-    obj = obs.object_points
-    usable = obs.usable(iopt.min_corners)
-    rejected = _detection_rejections(obs, usable, detections)
+    return ref, floor_index, wand_px
 
-    # 1. intrinsics -------------------------------------------------------------
-    intr, k3_free, zhang_rms, use = _intrinsics_per_camera(obs, usable, iopt, known_intrinsics, detections, rejected)
-    Ks = np.stack([intrinsics_from_vector(p)[0] for p in intr])
-    dists = np.stack([intrinsics_from_vector(p)[1] for p in intr])
-    poses = board_poses_pnp(obs.corners_px, obj, Ks, dists, use)
-    use &= poses.valid
 
-    # 2. extrinsics ----------------------------------------------------------------
-    R_cw, t_cw, R_wb, t_wb = _initial_extrinsics(poses, names, ref, intr, wand, wand_px)
+@dataclass
+class _Rig:
+    """The rig as the calibration's steps refine it (reference camera's frame until the world frame is set).
 
-    # 3. bundle adjustment -----------------------------------------------------------
-    wand_pts = None
-    ba_info: dict = {}
-    final_rms = dict(zhang_rms)
-    view_rms = {n: np.full(V, np.nan) for n in names}
+    ``intr (C, 9)`` intrinsics vectors; ``R_cw (C, 3, 3)``, ``t_cw (C, 3)`` metres camera from
+    world; ``R_wb (V, 3, 3)``, ``t_wb (V, 3)`` world from board (NaN where unknown);
+    ``final_rms`` px per camera; ``view_rms`` per camera ``(V,)`` px (None: not computed);
+    ``wand_pts (F, 3, 3)`` metres; ``wand_rms_mm``; ``ba_info`` the bundle adjustment's figures.
+    """
+
+    intr: np.ndarray
+    R_cw: np.ndarray
+    t_cw: np.ndarray
+    R_wb: np.ndarray
+    t_wb: np.ndarray
+    final_rms: dict[str, float]
+    view_rms: dict[str, np.ndarray] | None = None
+    wand_pts: np.ndarray | None = None
+    wand_rms_mm: float | None = None
+    ba_info: dict = field(default_factory=dict)
+
+
+def _refine(obs: BoardObservations, rig: _Rig, ref: int, k3_free: np.ndarray, use: np.ndarray, wand: WandSpec | None,
+            wand_px: np.ndarray | None, bopt: BundleAdjustmentOptions) -> _Rig:
+    """Bundle adjustment of cameras, board poses (views ``use (C, V)``) and wand points together.
+
+    ``wand_px (C, F, 3, 2)`` pixels (or None). Returns the refined :class:`_Rig` with its final
+    per-camera and per-view RMS (px), wand points (m) and wand distance RMS (mm).
+    """
+    names = obs.camera_names
+    wand_pts = triangulate_wand(rig.intr, rig.R_cw, rig.t_cw, wand_px) if wand_px is not None else None
+    ba = bundle_adjust(rig.intr, rig.R_cw, rig.t_cw, camera_names=names, reference=ref, k3_free=k3_free,
+                       board_corners_px=obs.corners_px, object_points=obs.object_points, board_use=use, R_wb=rig.R_wb,
+                       t_wb=rig.t_wb, wand_px=wand_px, wand_points=wand_pts,
+                       wand_distances_m=None if wand is None else wand.distances, options=bopt)
     wand_rms_mm = None
-    if C > 1 or wand_px is not None:
-        if wand_px is not None:
-            wand_pts = triangulate_wand(intr, R_cw, t_cw, wand_px)
-        ba = bundle_adjust(intr, R_cw, t_cw, camera_names=names, reference=ref, k3_free=k3_free,
-                           board_corners_px=obs.corners_px, object_points=obj, board_use=use, R_wb=R_wb, t_wb=t_wb,
-                           wand_px=wand_px, wand_points=wand_pts,
-                           wand_distances_m=None if wand is None else wand.distances, options=bopt)
-        intr, R_cw, t_cw, R_wb, t_wb = ba.intrinsics, ba.R_cw, ba.t_cw, ba.R_wb, ba.t_wb
-        if wand_px is not None:
-            wand_pts = ba.wand_points
-            err = ba.wand_distance_error_m[np.isfinite(ba.wand_distance_error_m)]
-            wand_rms_mm = float(np.sqrt(np.mean(err ** 2)) * 1000) if err.size else None
-        final_rms = {n: float(ba.rms_px[c]) for c, n in enumerate(names)}
-        view_rms = {n: ba.view_rms_px[c] for c, n in enumerate(names)}
-        ba_info = dict(cost=ba.cost, initial_cost=ba.initial_cost, evaluations=ba.evaluations, status=ba.status,
-                       message=ba.message, n_parameters=ba.n_parameters, n_residuals=ba.n_residuals)
-    else:
-        view_rms = {names[0]: _single_camera_view_rms(obs, poses, intr[0], use[0])}
+    if wand_px is not None:
+        wand_pts = ba.wand_points
+        err = ba.wand_distance_error_m[np.isfinite(ba.wand_distance_error_m)]
+        wand_rms_mm = float(np.sqrt(np.mean(err ** 2)) * 1000) if err.size else None
+    return _Rig(ba.intrinsics, ba.R_cw, ba.t_cw, ba.R_wb, ba.t_wb,
+                final_rms={n: float(ba.rms_px[c]) for c, n in enumerate(names)},
+                view_rms={n: ba.view_rms_px[c] for c, n in enumerate(names)},
+                wand_pts=wand_pts, wand_rms_mm=wand_rms_mm,
+                ba_info=dict(cost=ba.cost, initial_cost=ba.initial_cost, evaluations=ba.evaluations, status=ba.status,
+                             message=ba.message, n_parameters=ba.n_parameters, n_residuals=ba.n_residuals))
 
-    # 4. world frame ---------------------------------------------------------------
+
+def _to_world_frame(obs: BoardObservations, rig: _Rig, floor_index: int | None, world_camera: str | None, ref: int) -> str:
+    """Move ``rig``'s cameras, board poses and wand points (in place) into the world frame; say which frame.
+
+    The world is the board lying on the floor in view ``floor_index`` (origin at the board
+    origin, z up), else the frame of ``world_camera`` (default: the reference camera ``ref``).
+    """
     if floor_index is not None:
         v = floor_index
-        if not np.isfinite(t_wb[v]).all():
+        if not np.isfinite(rig.t_wb[v]).all():
             raise CalibrationError(f"floor view {obs.view_labels[0][v]!r} (index {v}): no camera saw enough of the board in "
                                    f"it; take a picture of the board lying on the floor that at least one camera sees "
                                    f"entirely")
-        R_a, t_a = floor_transform(R_wb[v], t_wb[v])
+        R_a, t_a = floor_transform(rig.R_wb[v], rig.t_wb[v])
         world = f"floor board in view {v} ({obs.view_labels[0][v]}): origin at the board origin, x along its rows, z up"
     else:
         wc = obs.camera_index(world_camera) if world_camera is not None else ref
-        R_a, t_a = camera_transform(R_cw[wc], t_cw[wc])
-        world = f"camera {names[wc]!r} frame (x right, y down, z forward)"
-    R_cw, t_cw = transform_cameras(R_cw, t_cw, R_a, t_a)
-    R_wb, t_wb = transform_poses(R_wb, t_wb, R_a, t_a)
-    if wand_pts is not None:
-        wand_pts = transform_points(wand_pts, R_a, t_a)
+        R_a, t_a = camera_transform(rig.R_cw[wc], rig.t_cw[wc])
+        world = f"camera {obs.camera_names[wc]!r} frame (x right, y down, z forward)"
+    rig.R_cw, rig.t_cw = transform_cameras(rig.R_cw, rig.t_cw, R_a, t_a)
+    rig.R_wb, rig.t_wb = transform_poses(rig.R_wb, rig.t_wb, R_a, t_a)
+    if rig.wand_pts is not None:
+        rig.wand_pts = transform_points(rig.wand_pts, R_a, t_a)
+    return world
 
-    cams = []
-    for c, n in enumerate(names):
-        K, d = intrinsics_from_vector(intr[c])
-        cams.append(Camera(n, obs.image_sizes[c], K, d, R_cw[c], t_cw[c]))
-    poses_h = np.full((V, 4, 4), np.nan)
-    poses_h[:, :3, :3] = R_wb
-    poses_h[:, :3, 3] = t_wb
-    poses_h[:, 3] = [0, 0, 0, 1]
-    return CalibrationResult(
-        calibration=Calibration(tuple(cams)),
-        reprojection_rms_px=final_rms,
-        intrinsics_rms_px=zhang_rms,
-        view_rms_px=view_rms,
-        views_used={n: [obs.view_labels[c][v] for v in np.flatnonzero(use[c])] for c, n in enumerate(names)},
-        views_rejected=rejected,
-        board_poses_world=poses_h,
-        wand_points_world=wand_pts,
-        wand_distance_rms_mm=wand_rms_mm,
-        world_frame=world,
-        bundle_adjustment=ba_info,
-    )
+
+def _homogeneous(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``(V, 4, 4)`` transforms from ``R (V, 3, 3)`` and ``t (V, 3)`` (NaN rows stay NaN)."""
+    out = np.full((len(R), 4, 4), np.nan)
+    out[:, :3, :3] = R
+    out[:, :3, 3] = t
+    out[:, 3] = [0, 0, 0, 1]
+    return out
 
 
 def write_calibration(result: CalibrationResult, out: str | os.PathLike) -> list[Path]:
