@@ -168,84 +168,12 @@ def simulate(
 
     drive_fn = _Drive(humanoid_qpos_fn, np.array([0.0, 0.5 * timestep_s, t_req[-1]]))
     q_samples = drive_fn.many(t_req)
+    dynamic = _initial_state(model, data, scene, drive_fn.one(0.0))
+    physics = _PropPhysics(model, data, drive_fn, timestep_s, t_req[-1]) if dynamic else None
 
-    # --- initial state (t = 0) ----------------------------------------------------
-    data.qpos[:NQ] = drive_fn.one(0.0)
-    for p in scene.props:
-        if isinstance(p, BallProp):
-            adr = model.jnt_dofadr[model.joint(f"{p.name}_free").id]
-            data.qvel[adr : adr + 6] = p.initial_qvel()
-        elif isinstance(p, MovingProp):
-            adr = model.jnt_dofadr[model.joint(f"{p.name}_slide").id]
-            data.qvel[adr] = p.initial_qvel()[0]
-    dynamic = any(isinstance(p, (BallProp, MovingProp)) for p in scene.props)
-
-    full_q1 = np.empty(model.nq)
-    full_q2 = np.empty(model.nq)
-    vel = np.empty(model.nv)
-
-    def drive(d: mujoco.MjData, qa: np.ndarray, qb: np.ndarray, dt: float) -> None:
-        """Put the humanoid at qa with the velocity that reaches qb after dt."""
-        full_q1[:] = d.qpos
-        full_q2[:] = d.qpos
-        full_q1[:NQ] = qa
-        full_q2[:NQ] = qb
-        mujoco.mj_differentiatePos(model, vel, dt, full_q1, full_q2)
-        d.qpos[:NQ] = qa
-        d.qvel[:NV] = vel[:NV]
-
-    T = len(t_req)
     site_ids = np.array([model.site(m.name).id for m in scene.marker_specs], dtype=np.int64)
     body_ids = np.array([model.body(n).id for n in BODY_NAMES], dtype=np.int64)
-    prop_ids = {p.name: model.body(p.name).id for p in scene.props}
-    qpos = np.empty((T, model.nq))
-    xpos = np.empty((T, model.nbody, 3))
-    xmat = np.empty((T, model.nbody, 3, 3))
-    markers = np.empty((T, len(site_ids), 3))
-
-    # humanoid qpos on the physics grid k * dt, evaluated in blocks as the loop needs them
-    n_grid = int(np.floor(t_req[-1] / timestep_s + 1e-9)) + 2 if dynamic else 0
-    grid_block: dict[int, np.ndarray] = {}
-
-    def q_grid(k: int) -> np.ndarray:
-        b = k // _Drive._BLOCK
-        if b not in grid_block:
-            grid_block.clear()
-            ks = np.arange(b * _Drive._BLOCK, min((b + 1) * _Drive._BLOCK, n_grid))
-            grid_block[b] = drive_fn.many(ks * timestep_s)
-        return grid_block[b][k - b * _Drive._BLOCK]
-
-    k = 0  # grid index: data holds the state at k * dt
-    for i, ts in enumerate(t_req):
-        q_s = q_samples[i]
-        if dynamic:
-            # whole steps on the fixed grid up to ts
-            while (k + 1) * timestep_s <= ts + 1e-12:
-                drive(data, q_grid(k), q_grid(k + 1), timestep_s)
-                mujoco.mj_step(model, data)
-                k += 1
-            tau = ts - k * timestep_s
-            mujoco.mj_copyData(scratch, model, data)
-            if tau > 1e-12:
-                drive(scratch, q_grid(k), q_s, tau)
-                model.opt.timestep = tau
-                mujoco.mj_step(model, scratch)
-                model.opt.timestep = timestep_s
-        scratch.qpos[:NQ] = q_s  # the humanoid exactly where the motion puts it at ts
-        mujoco.mj_kinematics(model, scratch)
-        qpos[i] = scratch.qpos
-        xpos[i] = scratch.xpos
-        xmat[i] = scratch.xmat.reshape(-1, 3, 3)
-        if len(site_ids):
-            markers[i] = scratch.site_xpos[site_ids]
-
-    prop_poses = {}
-    for name, bid in prop_ids.items():
-        P = np.zeros((T, 4, 4))
-        P[:, :3, :3] = xmat[:, bid]
-        P[:, :3, 3] = xpos[:, bid]
-        P[:, 3, 3] = 1.0
-        prop_poses[name] = P
+    qpos, xpos, xmat, markers = _sample(model, scratch, physics, t_req, q_samples, site_ids)
     return SceneStates(
         times=t_req.copy(),
         qpos=qpos,
@@ -253,7 +181,125 @@ def simulate(
         body_xmat=xmat,
         marker_xpos=markers,
         joint_centres=xpos[:, body_ids].copy(),
-        prop_poses=prop_poses,
+        prop_poses=_prop_poses(model, scene, xpos, xmat),
         marker_names=tuple(m.name for m in scene.marker_specs),
         body_names=tuple(model.body(b).name for b in range(model.nbody)),
     )
+
+
+def _initial_state(model: mujoco.MjModel, data: mujoco.MjData, scene: Scene, q0: np.ndarray) -> bool:
+    """Put ``data`` at t = 0: the humanoid at ``q0 (40,)``, each ball and moving prop at its initial velocity.
+
+    Returns whether any prop moves (a ball or a moving prop), i.e. whether physics must run.
+    """
+    data.qpos[:NQ] = q0
+    for p in scene.props:
+        if isinstance(p, BallProp):
+            adr = model.jnt_dofadr[model.joint(f"{p.name}_free").id]
+            data.qvel[adr : adr + 6] = p.initial_qvel()
+        elif isinstance(p, MovingProp):
+            adr = model.jnt_dofadr[model.joint(f"{p.name}_slide").id]
+            data.qvel[adr] = p.initial_qvel()[0]
+    return any(isinstance(p, (BallProp, MovingProp)) for p in scene.props)
+
+
+class _PropPhysics:
+    """The props' physics on the fixed grid ``k * dt`` from t = 0, the humanoid driven kinematically.
+
+    ``data`` holds the state at grid time ``k * dt``; :meth:`advance` steps it up to a
+    requested instant and puts the state at that instant (one partial step) into a scratch copy.
+    """
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, drive_fn: _Drive, timestep_s: float, t_end: float) -> None:
+        self.model, self.data, self.drive_fn, self.dt = model, data, drive_fn, timestep_s
+        self.k = 0  # grid index: data holds the state at k * dt
+        self.n_grid = int(np.floor(t_end / timestep_s + 1e-9)) + 2
+        self._grid_block: dict[int, np.ndarray] = {}
+        self._q1 = np.empty(model.nq)
+        self._q2 = np.empty(model.nq)
+        self._vel = np.empty(model.nv)
+
+    def drive(self, d: mujoco.MjData, qa: np.ndarray, qb: np.ndarray, dt: float) -> None:
+        """Put the humanoid of ``d`` at ``qa (40,)`` with the velocity that reaches ``qb (40,)`` after ``dt`` seconds."""
+        self._q1[:] = d.qpos
+        self._q2[:] = d.qpos
+        self._q1[:NQ] = qa
+        self._q2[:NQ] = qb
+        mujoco.mj_differentiatePos(self.model, self._vel, dt, self._q1, self._q2)
+        d.qpos[:NQ] = qa
+        d.qvel[:NV] = self._vel[:NV]
+
+    def q_grid(self, k: int) -> np.ndarray:
+        """The humanoid's ``(40,)`` qpos at grid time ``k * dt``, evaluated in blocks as the loop needs them."""
+        b = k // _Drive._BLOCK
+        if b not in self._grid_block:
+            self._grid_block.clear()
+            ks = np.arange(b * _Drive._BLOCK, min((b + 1) * _Drive._BLOCK, self.n_grid))
+            self._grid_block[b] = self.drive_fn.many(ks * self.dt)
+        return self._grid_block[b][k - b * _Drive._BLOCK]
+
+    def advance(self, ts: float, q_s: np.ndarray, scratch: mujoco.MjData) -> None:
+        """Whole steps on the grid up to ``ts`` seconds, then ``scratch`` = the state at ``ts`` (humanoid at ``q_s (40,)``)."""
+        model, data, dt = self.model, self.data, self.dt
+        while (self.k + 1) * dt <= ts + 1e-12:
+            self.drive(data, self.q_grid(self.k), self.q_grid(self.k + 1), dt)
+            mujoco.mj_step(model, data)
+            self.k += 1
+        tau = ts - self.k * dt
+        mujoco.mj_copyData(scratch, model, data)
+        if tau > 1e-12:
+            self.drive(scratch, self.q_grid(self.k), q_s, tau)
+            model.opt.timestep = tau
+            mujoco.mj_step(model, scratch)
+            model.opt.timestep = dt
+
+
+def _sample(model: mujoco.MjModel, scratch: mujoco.MjData, physics: _PropPhysics | None, t_req: np.ndarray,
+            q_samples: np.ndarray, site_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The scene's kinematics at each requested instant.
+
+    Parameters
+    ----------
+    physics : _PropPhysics or None
+        Steps the props (None: nothing moves but the humanoid).
+    t_req : (T,) float
+        Seconds, increasing.
+    q_samples : (T, 40) float
+        The humanoid's qpos at ``t_req``.
+    site_ids : (M,) int
+        MuJoCo site ids of the markers.
+
+    Returns
+    -------
+    qpos (T, nq), body xpos (T, nbody, 3) metres, body xmat (T, nbody, 3, 3), markers (T, M, 3) metres.
+    """
+    T = len(t_req)
+    qpos = np.empty((T, model.nq))
+    xpos = np.empty((T, model.nbody, 3))
+    xmat = np.empty((T, model.nbody, 3, 3))
+    markers = np.empty((T, len(site_ids), 3))
+    for i, ts in enumerate(t_req):
+        q_s = q_samples[i]
+        if physics is not None:
+            physics.advance(ts, q_s, scratch)
+        scratch.qpos[:NQ] = q_s  # the humanoid exactly where the motion puts it at ts
+        mujoco.mj_kinematics(model, scratch)
+        qpos[i] = scratch.qpos
+        xpos[i] = scratch.xpos
+        xmat[i] = scratch.xmat.reshape(-1, 3, 3)
+        if len(site_ids):
+            markers[i] = scratch.site_xpos[site_ids]
+    return qpos, xpos, xmat, markers
+
+
+def _prop_poses(model: mujoco.MjModel, scene: Scene, xpos: np.ndarray, xmat: np.ndarray) -> dict[str, np.ndarray]:
+    """``prop name -> (T, 4, 4)`` world pose of its body, from body ``xpos (T, nbody, 3)`` and ``xmat (T, nbody, 3, 3)``."""
+    prop_poses = {}
+    for p in scene.props:
+        bid = model.body(p.name).id
+        P = np.zeros((len(xpos), 4, 4))
+        P[:, :3, :3] = xmat[:, bid]
+        P[:, :3, 3] = xpos[:, bid]
+        P[:, 3, 3] = 1.0
+        prop_poses[p.name] = P
+    return prop_poses
