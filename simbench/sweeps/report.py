@@ -354,97 +354,17 @@ def write_sweep_report(db_path: str | Path, out: str | Path, sweep: str | None =
     bad = runs[runs["status"] != STATUS_OK]
     varying = _varying(d, ok) if len(ok) else []
     key_varying = [m for m in KEY_METRICS if m in varying][:4] or varying[:4]
-    blocks: list[Block] = [Block("h1", f"Sweep report: {d.name}")]
-    if d.description:
-        blocks.append(Block("p", d.description))
-    wall = ""
-    all_runs = d.db.runs(d.name)
-    if len(all_runs):
-        t0, t1 = all_runs["started_at"].min(), all_runs["ended_at"].max()
-        wall = (f"; {all_runs['duration_s'].sum():.0f} s of run time in workers, "
-                f"{(t1 - t0).total_seconds():.0f} s from first start ({t0:%Y-%m-%d %H:%M:%S} UTC) to last end")
-    blocks.append(Block("p", f"Database `{d.db.path}`: {len(runs)} runs, {len(ok)} ok, {len(bad)} failed{wall}. "
-                             f"Factors: " + "; ".join(f"`{f}` = {', '.join(map(str, lv))}" for f, lv in d.factors.items())
-                             + f". Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC."))
-    if len(all_runs):
-        v = all_runs["versions"].iloc[0]
-        blocks.append(Block("p", "Versions: " + ", ".join(f"{k} {val}" for k, val in v.items())))
-
+    blocks = _overview_blocks(d, ok, bad)
     if len(ok):
-        rows = []
-        for m in d.metrics:
-            col = ok[m]
-            rows.append((f"`{m}`", KEY_METRICS.get(m, ""), _fmt(float(col.min())), _fmt(float(col.median())),
-                         _fmt(float(col.max())), str(int(col.notna().sum()))))
-        blocks += [Block("h2", "Metrics over all runs"),
-                   Block("table", header=("metric", "worse", "min", "median", "max", "runs"), rows=tuple(rows))]
-
+        blocks += _metrics_table_blocks(d, ok)
     if varying and d.factors:
-        blocks.append(Block("h2", "Each metric against each factor"))
-        for f in d.factors:
-            p = plots / f"metrics_vs_{_safe(f)}.png"
-            plot_metric_vs_factor(d, ok, f, varying, p)
-            blocks.append(Block("img", f"plots/{p.name}", header=(f"metrics vs {f}",)))
-
-    cat = [f for f in d.factors if not _is_numeric_axis(d.factors[f])]
-    if key_varying and len(cat) >= 2:
-        blocks.append(Block("h2", "Heatmaps over two factors"))
-        blocks.append(Block("p", "Each cell is the mean over the runs with those two levels (and every level of the other "
-                                 "factors); yellow is better in every panel, a dash means nothing was measured."))
-        for fx, fy in combinations(cat, 2):
-            p = plots / f"heatmap_{_safe(fy)}__{_safe(fx)}.png"
-            plot_heatmaps(d, ok, fx, fy, key_varying, p)
-            blocks.append(Block("img", f"plots/{p.name}", header=(f"{fy} x {fx}",)))
-
-    tracker = next((f for f in d.factors if f in TRACKER_FIELDS or f.endswith(".tracker")), None)
-    if tracker and key_varying:
-        p = plots / "trackers.png"
-        plot_trackers(d, ok, tracker, key_varying, p)
-        rows = []
-        for tr in d.factors[tracker]:
-            sel = ok[ok[tracker] == tr]
-            rows.append((str(tr), str(len(sel)), *(_fmt(float(sel[m].mean())) for m in key_varying)))
-        blocks += [Block("h2", "Trackers side by side"), Block("img", f"plots/{p.name}", header=("trackers",)),
-                   Block("table", header=(tracker, "runs", *(f"mean {m}" for m in key_varying)), rows=tuple(rows))]
-
-    worst, by = _worst_order(ok, d.metrics)
-    worst = worst.head(n_worst)
-    if len(worst):
-        blocks.append(Block("h2", f"Worst {len(worst)} runs" + (f" by `{by}`" if by else "")))
-        shown = [m for m in KEY_METRICS if m in d.metrics][:4]
-        rows = []
-        for i, (_, r) in enumerate(worst.iterrows(), 1):
-            links = _run_links(d, r, out)
-            rows.append((str(i), f"`{r['run_id']}`", ", ".join(f"{f}={r[f]}" for f in d.factors),
-                         *(_fmt(float(r[m])) for m in shown), *links))
-        n_links = max(len(r) for r in rows) - 3 - len(shown)
-        blocks.append(Block("table", header=("#", "run", "factors", *shown, *(["outputs"] + [""] * (n_links - 1) if n_links else [])),
-                            rows=tuple(r + ("",) * (3 + len(shown) + n_links - len(r)) for r in rows)))
-        # Per-frame error of the worst runs that reconstructed anything at all.
-        ranked, _ = _worst_order(ok, d.metrics)
-        frames = d.db.per_frame(list(ranked["run_id"]))
-        with_data = set(frames.loc[np.isfinite(frames["error_mm"].to_numpy(float)), "run_id"]) if len(frames) else set()
-        pick = ranked[ranked["run_id"].isin(with_data)].head(5)
-        if len(pick):
-            labels = {r["run_id"]: f"{r['run_id'][:8]} " + " ".join(str(r[f]) for f in d.factors) for _, r in pick.iterrows()}
-            p = plots / "worst_runs_per_frame.png"
-            plot_worst_per_frame(frames, labels, p)
-            blocks.append(Block("p", "Per-frame 3D marker error of the worst runs that reconstructed any marker "
-                                     "(from the per-frame Parquet tables):"))
-            blocks.append(Block("img", f"plots/{p.name}", header=("worst runs per frame",)))
-
+        blocks += _factor_plot_blocks(d, ok, varying, plots)
+    blocks += _heatmap_blocks(d, ok, key_varying, plots)
+    blocks += _tracker_blocks(d, ok, key_varying, plots)
+    blocks += _worst_run_blocks(d, ok, n_worst, out, plots)
     if len(bad):
-        blocks.append(Block("h2", f"Failed runs ({len(bad)})"))
-        rows = tuple((f"`{r['run_id']}`", ", ".join(f"{f}={r[f]}" for f in d.factors),
-                      (r["error"] or "").splitlines()[0] if r["error"] else "") for _, r in bad.iterrows())
-        blocks.append(Block("table", header=("run", "factors", "error"), rows=rows))
-
-    blocks.append(Block("h2", "All runs"))
-    shown = [m for m in KEY_METRICS if m in d.metrics][:4]
-    rows = tuple((str(int(r["run_index"])), f"`{r['run_id']}`", *(str(r[f]) for f in d.factors), r["status"],
-                  *(_fmt(float(r[m])) if r["status"] == STATUS_OK else "" for m in shown), f"{r['duration_s']:.1f}")
-                 for _, r in runs.sort_values("run_index").iterrows())
-    blocks.append(Block("table", header=("#", "run", *d.factors, "status", *shown, "s"), rows=rows))
+        blocks += _failed_run_blocks(d, bad)
+    blocks += _all_run_blocks(d)
 
     md = out / "report.md"
     md.write_text(to_markdown(blocks))
@@ -455,3 +375,129 @@ def write_sweep_report(db_path: str | Path, out: str | Path, sweep: str | None =
         "plots": sorted(p.name for p in plots.glob("*.png")),
     }, indent=2, default=str))
     return md
+
+
+def _overview_blocks(d: SweepData, ok: pd.DataFrame, bad: pd.DataFrame) -> list[Block]:
+    """Title, description, run counts, wall time (s), factors and levels, and the versions of the first run.
+
+    ``ok`` and ``bad`` are the runs (rows of ``d.runs``) that succeeded and failed.
+    """
+    blocks: list[Block] = [Block("h1", f"Sweep report: {d.name}")]
+    if d.description:
+        blocks.append(Block("p", d.description))
+    wall = ""
+    all_runs = d.db.runs(d.name)
+    if len(all_runs):
+        t0, t1 = all_runs["started_at"].min(), all_runs["ended_at"].max()
+        wall = (f"; {all_runs['duration_s'].sum():.0f} s of run time in workers, "
+                f"{(t1 - t0).total_seconds():.0f} s from first start ({t0:%Y-%m-%d %H:%M:%S} UTC) to last end")
+    blocks.append(Block("p", f"Database `{d.db.path}`: {len(d.runs)} runs, {len(ok)} ok, {len(bad)} failed{wall}. "
+                             f"Factors: " + "; ".join(f"`{f}` = {', '.join(map(str, lv))}" for f, lv in d.factors.items())
+                             + f". Generated {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC."))
+    if len(all_runs):
+        v = all_runs["versions"].iloc[0]
+        blocks.append(Block("p", "Versions: " + ", ".join(f"{k} {val}" for k, val in v.items())))
+    return blocks
+
+
+def _metrics_table_blocks(d: SweepData, ok: pd.DataFrame) -> list[Block]:
+    """Each metric's min, median and max (in the metric's own units) over the successful runs ``ok``."""
+    rows = []
+    for m in d.metrics:
+        col = ok[m]
+        rows.append((f"`{m}`", KEY_METRICS.get(m, ""), _fmt(float(col.min())), _fmt(float(col.median())),
+                     _fmt(float(col.max())), str(int(col.notna().sum()))))
+    return [Block("h2", "Metrics over all runs"),
+            Block("table", header=("metric", "worse", "min", "median", "max", "runs"), rows=tuple(rows))]
+
+
+def _factor_plot_blocks(d: SweepData, ok: pd.DataFrame, varying: list[str], plots: Path) -> list[Block]:
+    """One plot per factor (``plots/metrics_vs_<factor>.png``) of the ``varying`` metrics against its levels."""
+    blocks = [Block("h2", "Each metric against each factor")]
+    for f in d.factors:
+        p = plots / f"metrics_vs_{_safe(f)}.png"
+        plot_metric_vs_factor(d, ok, f, varying, p)
+        blocks.append(Block("img", f"plots/{p.name}", header=(f"metrics vs {f}",)))
+    return blocks
+
+
+def _heatmap_blocks(d: SweepData, ok: pd.DataFrame, key_varying: list[str], plots: Path) -> list[Block]:
+    """Heatmaps of the ``key_varying`` metrics over each pair of categorical factors (none with fewer than two)."""
+    cat = [f for f in d.factors if not _is_numeric_axis(d.factors[f])]
+    if not (key_varying and len(cat) >= 2):
+        return []
+    blocks = [Block("h2", "Heatmaps over two factors"),
+              Block("p", "Each cell is the mean over the runs with those two levels (and every level of the other "
+                         "factors); yellow is better in every panel, a dash means nothing was measured.")]
+    for fx, fy in combinations(cat, 2):
+        p = plots / f"heatmap_{_safe(fy)}__{_safe(fx)}.png"
+        plot_heatmaps(d, ok, fx, fy, key_varying, p)
+        blocks.append(Block("img", f"plots/{p.name}", header=(f"{fy} x {fx}",)))
+    return blocks
+
+
+def _tracker_blocks(d: SweepData, ok: pd.DataFrame, key_varying: list[str], plots: Path) -> list[Block]:
+    """If a factor is the tracker: its plot (``plots/trackers.png``) and each tracker's mean key metrics."""
+    tracker = next((f for f in d.factors if f in TRACKER_FIELDS or f.endswith(".tracker")), None)
+    if not (tracker and key_varying):
+        return []
+    p = plots / "trackers.png"
+    plot_trackers(d, ok, tracker, key_varying, p)
+    rows = []
+    for tr in d.factors[tracker]:
+        sel = ok[ok[tracker] == tr]
+        rows.append((str(tr), str(len(sel)), *(_fmt(float(sel[m].mean())) for m in key_varying)))
+    return [Block("h2", "Trackers side by side"), Block("img", f"plots/{p.name}", header=("trackers",)),
+            Block("table", header=(tracker, "runs", *(f"mean {m}" for m in key_varying)), rows=tuple(rows))]
+
+
+def _worst_run_blocks(d: SweepData, ok: pd.DataFrame, n_worst: int, out: Path, plots: Path) -> list[Block]:
+    """The ``n_worst`` worst successful runs (factors, key metrics, links to their outputs under ``out``),
+    then the per-frame error plot of those that reconstructed anything."""
+    worst, by = _worst_order(ok, d.metrics)
+    worst = worst.head(n_worst)
+    if not len(worst):
+        return []
+    blocks = [Block("h2", f"Worst {len(worst)} runs" + (f" by `{by}`" if by else ""))]
+    shown = [m for m in KEY_METRICS if m in d.metrics][:4]
+    rows = []
+    for i, (_, r) in enumerate(worst.iterrows(), 1):
+        links = _run_links(d, r, out)
+        rows.append((str(i), f"`{r['run_id']}`", ", ".join(f"{f}={r[f]}" for f in d.factors),
+                     *(_fmt(float(r[m])) for m in shown), *links))
+    n_links = max(len(r) for r in rows) - 3 - len(shown)
+    blocks.append(Block("table", header=("#", "run", "factors", *shown, *(["outputs"] + [""] * (n_links - 1) if n_links else [])),
+                        rows=tuple(r + ("",) * (3 + len(shown) + n_links - len(r)) for r in rows)))
+    return blocks + _worst_per_frame_blocks(d, ok, plots)
+
+
+def _worst_per_frame_blocks(d: SweepData, ok: pd.DataFrame, plots: Path) -> list[Block]:
+    """Per-frame 3D marker error (mm) of the five worst runs that reconstructed any marker (``plots/worst_runs_per_frame.png``)."""
+    ranked, _ = _worst_order(ok, d.metrics)
+    frames = d.db.per_frame(list(ranked["run_id"]))
+    with_data = set(frames.loc[np.isfinite(frames["error_mm"].to_numpy(float)), "run_id"]) if len(frames) else set()
+    pick = ranked[ranked["run_id"].isin(with_data)].head(5)
+    if not len(pick):
+        return []
+    labels = {r["run_id"]: f"{r['run_id'][:8]} " + " ".join(str(r[f]) for f in d.factors) for _, r in pick.iterrows()}
+    p = plots / "worst_runs_per_frame.png"
+    plot_worst_per_frame(frames, labels, p)
+    return [Block("p", "Per-frame 3D marker error of the worst runs that reconstructed any marker "
+                       "(from the per-frame Parquet tables):"),
+            Block("img", f"plots/{p.name}", header=("worst runs per frame",))]
+
+
+def _failed_run_blocks(d: SweepData, bad: pd.DataFrame) -> list[Block]:
+    """The failed runs ``bad``: id, factors and the first line of the error."""
+    rows = tuple((f"`{r['run_id']}`", ", ".join(f"{f}={r[f]}" for f in d.factors),
+                  (r["error"] or "").splitlines()[0] if r["error"] else "") for _, r in bad.iterrows())
+    return [Block("h2", f"Failed runs ({len(bad)})"), Block("table", header=("run", "factors", "error"), rows=rows)]
+
+
+def _all_run_blocks(d: SweepData) -> list[Block]:
+    """Every run in run order: factors, status, key metrics and duration (s)."""
+    shown = [m for m in KEY_METRICS if m in d.metrics][:4]
+    rows = tuple((str(int(r["run_index"])), f"`{r['run_id']}`", *(str(r[f]) for f in d.factors), r["status"],
+                  *(_fmt(float(r[m])) if r["status"] == STATUS_OK else "" for m in shown), f"{r['duration_s']:.1f}")
+                 for _, r in d.runs.sort_values("run_index").iterrows())
+    return [Block("h2", "All runs"), Block("table", header=("#", "run", *d.factors, "status", *shown, "s"), rows=rows)]
