@@ -48,9 +48,7 @@ def markers(
     estimated clocks."""
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
-    from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, capture_from_detections, export_capture
-
-    from mocap.trackers import get_tracker
+    from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, export_capture
 
     cal = Calibration.load(calibration)
     if len(cal) < 2:
@@ -58,32 +56,11 @@ def markers(
                              "markers are triangulated: give the calibration of two cameras or more")
     tmpl = load_template(template)
     paths = order_videos_by_camera(list(videos), cal.names)
-    if mode not in ("ir", "visible"):
-        raise InputFileError(Path("--mode"), f"value {mode!r}", "use 'ir' or 'visible'")
-    try:
-        get_tracker(tracker)
-    except MocapInputError as exc:
-        raise InputFileError(Path("--tracker"), f"value {tracker!r}", str(exc)) from None
+    _check_mode_and_tracker(mode, tracker)
     probes = [probe_video(p) for p in paths]
     check_videos_against_calibration(paths, probes, cal)
-    if probes[0].frames < 2:
-        raise InputFileError(paths[0], f"holds {probes[0].frames} frame", "a capture needs 2 frames or more (its markers "
-                             "are tracked from frame to frame)")
-    if fps is None:
-        fps = probes[0].fps
-        if not (np.isfinite(fps) and fps > 0):
-            raise InputFileError(paths[0], f"the file states no frame rate ({fps})", "pass --fps with the capture's frame rate")
-    elif not (np.isfinite(fps) and 0 < fps <= 10000):
-        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
-    stamps = None
-    if timestamps:
-        from mocap.synchronisation import read_timestamps_csv
-
-        stamps = [read_timestamps_csv(p.with_name(p.stem + ".timestamps.csv")) for p in paths]
-        for p, t, pr in zip(paths, stamps, probes):
-            if len(t) != pr.frames:
-                raise InputFileError(p.with_name(p.stem + ".timestamps.csv"), f"holds {len(t)} timestamps for the "
-                                     f"{pr.frames} frames of {p.name}", "give one timestamp per frame")
+    fps = _capture_fps(paths, probes, fps)
+    stamps = _read_camera_timestamps(paths, probes) if timestamps else None
     out_dir = Path(out)
     subj = None
     if subject is not None:
@@ -98,32 +75,85 @@ def markers(
         if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
             raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
                                  f"check --mode ({mode}: 'ir' finds bright markers on a dark scene, 'visible' white markers on a lit subject) and the exposure")
-        sync_summary = None
-        if stamps is not None:
-            from mocap.marker_pipeline import capture_unsynchronised
-
-            n = len(stream.detections[0])
-            capture, sync = capture_unsynchronised(stream.detections, [t[:n] for t in stamps], cal, tmpl, params,
-                                                   np.random.default_rng(seed), subj, stream.ms)
-            sync_summary = {"reference": cal.names[sync.reference], "model": "s_reference = offset + (1 + drift) * s_camera",
-                            "offset_ms": {c: round(float(o) * 1e3, 4) for c, o in zip(cal.names, sync.offset_s)},
-                            "drift_ppm": {c: round(float(d) * 1e6, 2) for c, d in zip(cal.names, sync.drift)}}
-        else:
-            times = np.arange(len(stream.detections[0])) / fps
-            capture = capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
-                                              stream.ms)
+        capture, sync_summary = _capture(stream, cal, tmpl, params, seed, subj, stamps, fps)
         files = export_capture(capture, tmp, cal, subj)
-        traj = capture.trajectories
-        have = np.isfinite(traj.xyz).all(-1)
-        summary = {"frames": int(traj.xyz.shape[0]), "markers": len(traj.labels),
-                   "reconstructed_fraction": float(have.mean()),
-                   "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
-                   "files": {k: str(out_dir / Path(v).name) for k, v in files.items()}}
-        if sync_summary is not None:
-            summary["synchronisation"] = sync_summary
+        summary = _markers_summary(capture, files, out_dir, sync_summary)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out_dir}/",
                   markup=False)
+
+
+def _check_mode_and_tracker(mode: str, tracker: str) -> None:
+    """Refuse a ``--mode`` other than ir/visible and a ``--tracker`` the registry does not know."""
+    from mocap.trackers import get_tracker
+
+    if mode not in ("ir", "visible"):
+        raise InputFileError(Path("--mode"), f"value {mode!r}", "use 'ir' or 'visible'")
+    try:
+        get_tracker(tracker)
+    except MocapInputError as exc:
+        raise InputFileError(Path("--tracker"), f"value {tracker!r}", str(exc)) from None
+
+
+def _capture_fps(paths: list[Path], probes: list, fps: float | None) -> float:
+    """The capture's frame rate (Hz): ``--fps`` if given (checked), else the first video's; 2 frames or more required."""
+    if probes[0].frames < 2:
+        raise InputFileError(paths[0], f"holds {probes[0].frames} frame", "a capture needs 2 frames or more (its markers "
+                             "are tracked from frame to frame)")
+    if fps is None:
+        fps = probes[0].fps
+        if not (np.isfinite(fps) and fps > 0):
+            raise InputFileError(paths[0], f"the file states no frame rate ({fps})", "pass --fps with the capture's frame rate")
+    elif not (np.isfinite(fps) and 0 < fps <= 10000):
+        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
+    return fps
+
+
+def _read_camera_timestamps(paths: list[Path], probes: list) -> list[np.ndarray]:
+    """Each video's ``<name>.timestamps.csv``: ``(frames,)`` seconds on its camera's own clock, one per frame."""
+    from mocap.synchronisation import read_timestamps_csv
+
+    stamps = [read_timestamps_csv(p.with_name(p.stem + ".timestamps.csv")) for p in paths]
+    for p, t, pr in zip(paths, stamps, probes):
+        if len(t) != pr.frames:
+            raise InputFileError(p.with_name(p.stem + ".timestamps.csv"), f"holds {len(t)} timestamps for the "
+                                 f"{pr.frames} frames of {p.name}", "give one timestamp per frame")
+    return stamps
+
+
+def _capture(stream, cal: Calibration, tmpl, params, seed: int, subj, stamps: list[np.ndarray] | None, fps: float):
+    """The marker pipeline on the detected blobs of ``stream``.
+
+    Synchronised cameras: frame ``i`` at ``i / fps`` seconds. With ``stamps`` (per camera
+    ``(frames,)`` seconds, own clocks): the clocks are estimated first. Returns the capture
+    and, with ``stamps``, the summary of the estimated clocks (offsets ms, drifts ppm), else None.
+    """
+    from mocap.marker_pipeline import capture_from_detections, capture_unsynchronised
+
+    if stamps is None:
+        times = np.arange(len(stream.detections[0])) / fps
+        return capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
+                                       stream.ms), None
+    n = len(stream.detections[0])
+    capture, sync = capture_unsynchronised(stream.detections, [t[:n] for t in stamps], cal, tmpl, params,
+                                           np.random.default_rng(seed), subj, stream.ms)
+    sync_summary = {"reference": cal.names[sync.reference], "model": "s_reference = offset + (1 + drift) * s_camera",
+                    "offset_ms": {c: round(float(o) * 1e3, 4) for c, o in zip(cal.names, sync.offset_s)},
+                    "drift_ppm": {c: round(float(d) * 1e6, 2) for c, d in zip(cal.names, sync.drift)}}
+    return capture, sync_summary
+
+
+def _markers_summary(capture, files: dict, out_dir: Path, sync_summary: dict | None) -> dict:
+    """``summary.json``'s content: frames, labels, reconstructed fraction, stage timings (ms), files written, clocks."""
+    traj = capture.trajectories
+    have = np.isfinite(traj.xyz).all(-1)
+    summary = {"frames": int(traj.xyz.shape[0]), "markers": len(traj.labels),
+               "reconstructed_fraction": float(have.mean()),
+               "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
+               "files": {k: str(out_dir / Path(v).name) for k, v in files.items()}}
+    if sync_summary is not None:
+        summary["synchronisation"] = sync_summary
+    return summary
 
 
 @contextlib.contextmanager
