@@ -105,50 +105,18 @@ def synthetic_trial(category: str, rng: np.random.Generator, n_frames: int = 80,
     -------
     SyntheticTrial
     """
-    W, H = IMAGE_SIZE
     F = n_frames
-    t = np.arange(F)
     barrier = None
     if category == "slow":
-        speed = np.full(F, rng.uniform(1.5, 3.5))
-        turn = rng.uniform(0.03, 0.08) * np.sin(2 * np.pi * t / rng.uniform(25, 60))  # rad/frame
-        heading = rng.uniform(0, 2 * np.pi) + np.cumsum(turn)
-        xy = _integrate(np.array([W / 2, H / 2]) + rng.uniform(-60, 60, 2), speed, heading)[:, None]
+        xy = _slow_path(F, rng)
     elif category == "rapid":
         xy = _zigzag(F, rng)[:, None]
     elif category == "acceleration":
-        s0, s1 = rng.uniform(0.5, 1.5), rng.uniform(9.0, 13.0)
-        speed = s0 + (s1 - s0) * (t / (F - 1)) ** rng.uniform(1.0, 2.0)
-        if rng.random() < 0.5:  # braking instead of speeding up
-            speed = speed[::-1]
-        heading = rng.uniform(-0.4, 0.4) + np.cumsum(np.full(F, rng.uniform(-0.01, 0.01)))
-        dist = speed.sum()
-        x0 = (W - dist * np.cos(heading).mean()) / 2
-        xy = _integrate(np.array([x0, H / 2 + rng.uniform(-60, 60)]), speed, heading)[:, None]
-        if rng.random() < 0.5:  # right to left
-            xy[..., 0] = W - xy[..., 0]
+        xy = _acceleration_path(F, rng)
     elif category == "occlusion":
-        width = rng.uniform(30.0, 110.0)  # barrier width, px
-        speed = np.full(F, rng.uniform(4.0, 7.0))
-        curved = rng.random() < 0.5
-        turn = np.full(F, rng.uniform(-0.012, 0.012) if curved else 0.0)
-        heading = rng.uniform(-0.3, 0.3) + np.cumsum(turn) - turn[0]
-        start = np.array([W / 2 - speed[0] * F / 2, H / 2 + rng.uniform(-50, 50)])
-        xy = _integrate(start, speed, heading)[:, None]
-        barrier = (W / 2 - width / 2, W / 2 + width / 2)
+        xy, barrier = _occlusion_path(F, rng)
     elif category == "swap":
-        angle = np.radians(rng.uniform(5.0, 25.0))  # crossing angle
-        speeds = rng.uniform(3.0, 6.0, 2)
-        base = rng.uniform(0, 2 * np.pi)
-        headings = base + np.array([-angle / 2, angle / 2])
-        miss = rng.uniform(0.0, 4.0)  # closest distance at the crossing, px
-        t_cross = F / 2 + rng.uniform(-5, 5)
-        centre = np.array([W / 2, H / 2])
-        normal = np.array([-np.sin(base), np.cos(base)])
-        xy = np.empty((F, 2, 2))
-        for k in range(2):  # two markers
-            v = speeds[k] * np.array([np.cos(headings[k]), np.sin(headings[k])])
-            xy[:, k] = centre + (k - 0.5) * miss * normal + (t[:, None] - t_cross) * v
+        xy = _crossing_paths(F, rng)
     else:
         raise ValueError(f"unknown category {category!r}; expected one of {', '.join(CATEGORIES)}")
 
@@ -162,9 +130,83 @@ def synthetic_trial(category: str, rng: np.random.Generator, n_frames: int = 80,
     merged = np.zeros((F, M), dtype=bool)
     if M == 2:
         merged[:] = (np.linalg.norm(xy[:, 0] - xy[:, 1], axis=1) < merge_px)[:, None]
+    dets, owners = _detect(xy, visible, merged, noise_px, rng)
+    return SyntheticTrial(category, xy, visible & ~merged, dets, owners, dt, n_labels)
+
+
+def _slow_path(F: int, rng: np.random.Generator) -> np.ndarray:
+    """"slow": one marker at 1.5-3.5 px/frame near the image centre, turning gently; ``(F, 1, 2)`` px."""
+    W, H = IMAGE_SIZE
+    t = np.arange(F)
+    speed = np.full(F, rng.uniform(1.5, 3.5))
+    turn = rng.uniform(0.03, 0.08) * np.sin(2 * np.pi * t / rng.uniform(25, 60))  # rad/frame
+    heading = rng.uniform(0, 2 * np.pi) + np.cumsum(turn)
+    return _integrate(np.array([W / 2, H / 2]) + rng.uniform(-60, 60, 2), speed, heading)[:, None]
+
+
+def _acceleration_path(F: int, rng: np.random.Generator) -> np.ndarray:
+    """"acceleration": one marker speeding up from ~1 to ~11 px/frame (or braking), across the image; ``(F, 1, 2)`` px."""
+    W, H = IMAGE_SIZE
+    t = np.arange(F)
+    s0, s1 = rng.uniform(0.5, 1.5), rng.uniform(9.0, 13.0)
+    speed = s0 + (s1 - s0) * (t / (F - 1)) ** rng.uniform(1.0, 2.0)
+    if rng.random() < 0.5:  # braking instead of speeding up
+        speed = speed[::-1]
+    heading = rng.uniform(-0.4, 0.4) + np.cumsum(np.full(F, rng.uniform(-0.01, 0.01)))
+    dist = speed.sum()
+    x0 = (W - dist * np.cos(heading).mean()) / 2
+    xy = _integrate(np.array([x0, H / 2 + rng.uniform(-60, 60)]), speed, heading)[:, None]
+    if rng.random() < 0.5:  # right to left
+        xy[..., 0] = W - xy[..., 0]
+    return xy
+
+
+def _occlusion_path(F: int, rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, float]]:
+    """"occlusion": one marker at 4-7 px/frame behind a vertical barrier 30-110 px wide at the image centre.
+
+    Returns the path ``(F, 1, 2)`` px and the barrier's ``(x_left, x_right)`` px.
+    """
+    W, H = IMAGE_SIZE
+    width = rng.uniform(30.0, 110.0)  # barrier width, px
+    speed = np.full(F, rng.uniform(4.0, 7.0))
+    curved = rng.random() < 0.5
+    turn = np.full(F, rng.uniform(-0.012, 0.012) if curved else 0.0)
+    heading = rng.uniform(-0.3, 0.3) + np.cumsum(turn) - turn[0]
+    start = np.array([W / 2 - speed[0] * F / 2, H / 2 + rng.uniform(-50, 50)])
+    xy = _integrate(start, speed, heading)[:, None]
+    return xy, (W / 2 - width / 2, W / 2 + width / 2)
+
+
+def _crossing_paths(F: int, rng: np.random.Generator) -> np.ndarray:
+    """"swap": two markers on straight lines crossing at 5-25 deg, 0-4 px apart, mid-sequence; ``(F, 2, 2)`` px."""
+    W, H = IMAGE_SIZE
+    t = np.arange(F)
+    angle = np.radians(rng.uniform(5.0, 25.0))  # crossing angle
+    speeds = rng.uniform(3.0, 6.0, 2)
+    base = rng.uniform(0, 2 * np.pi)
+    headings = base + np.array([-angle / 2, angle / 2])
+    miss = rng.uniform(0.0, 4.0)  # closest distance at the crossing, px
+    t_cross = F / 2 + rng.uniform(-5, 5)
+    centre = np.array([W / 2, H / 2])
+    normal = np.array([-np.sin(base), np.cos(base)])
+    xy = np.empty((F, 2, 2))
+    for k in range(2):  # two markers
+        v = speeds[k] * np.array([np.cos(headings[k]), np.sin(headings[k])])
+        xy[:, k] = centre + (k - 0.5) * miss * normal + (t[:, None] - t_cross) * v
+    return xy
+
+
+def _detect(xy: np.ndarray, visible: np.ndarray, merged: np.ndarray, noise_px: float,
+            rng: np.random.Generator) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Noisy detections of the markers ``xy (F, M, 2)`` px, in random order per frame.
+
+    A marker is detected where ``visible (F, M)`` and not ``merged (F, M)``; merged markers
+    that are all visible give one blob at their mean (owner -1). Returns per frame the
+    detections ``(n, 2)`` px and their owners ``(n,)`` (marker index or -1).
+    """
     noisy = xy + rng.normal(0.0, noise_px, xy.shape)
     dets, owners = [], []
-    for f in range(F):
+    for f in range(len(xy)):
         own = np.flatnonzero(visible[f] & ~merged[f])
         pts = [noisy[f, own]]
         ids = [own]
@@ -175,7 +217,7 @@ def synthetic_trial(category: str, rng: np.random.Generator, n_frames: int = 80,
         order = rng.permutation(len(p))
         dets.append(p[order])
         owners.append(i[order])
-    return SyntheticTrial(category, xy, visible & ~merged, dets, owners, dt, n_labels)
+    return dets, owners
 
 
 def trial_losses(trial: SyntheticTrial, idx: np.ndarray) -> np.ndarray:
