@@ -399,74 +399,111 @@ class ShirtIK:
             Stop when an iteration lowers the energy by less than this fraction.
         """
         nv = self.model.nv
-        absent = np.asarray(cons.absent, bool) & np.isin(cons.camera, list((silhouettes or {}).keys()))
-        present = ~absent & ~np.asarray(cons.absent, bool)
         act = np.ones(nv, bool) if active is None else np.asarray(active, bool)
-        pri = [_Prior(np.asarray(qr, float), 1.0 / np.asarray(sd, float)) for qr, sd in priors]
+        energy = _Energy(self, cons, priors, silhouettes)
         q = self.kin.clamp(np.asarray(q0, float))
-        lay = self._layout(cons)
-
-        # constant over the solve: the whitening of present centroids (zero for the others)
-        # and the absent ones grouped by camera
-        info = np.where(present[:, None, None], np.asarray(cons.sqrt_info, float), 0.0)
-        target = np.where(present[:, None], cons.target_px, 0.0)
-        groups = [(silhouettes[int(ci)], np.flatnonzero(absent & (cons.camera == ci))) for ci in np.unique(cons.camera[absent])]
-        groups = [(sil, sel, cons.sqrt_info[sel, 0, 0]) for sil, sel in groups]
-
-        def residuals(qc: np.ndarray, jac: bool):
-            c, Jc = self.centroids(qc, cons, jac, lay)
-            e = np.where(present[:, None], c - target, 0.0)
-            r = np.einsum("nij,nj->ni", info, e)  # (n, 2) whitened
-            Jr = np.matmul(info, Jc) if jac else None
-            for sil, sel, inv in groups:
-                d, g = sil.sample(c[sel])
-                r[sel, 0], r[sel, 1] = d * inv, 0.0
-                if jac:
-                    Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
-                    Jr[sel, 1] = 0.0
-            norm = np.sqrt(np.einsum("ni,ni->n", r, r))
-            w = np.where(norm > self.huber, np.sqrt(self.huber / np.maximum(norm, 1e-12)), 1.0)
-            rs = [(r * w[:, None]).ravel()]
-            Js = [(Jr * w[:, None, None]).reshape(-1, nv)] if jac else []
-            for p in pri:
-                d = pin.difference(self.model, p.q_ref, qc)
-                rs.append(d * p.inv_std)
-                if jac:
-                    Jd = pin.dDifference(self.model, p.q_ref, qc, pin.ArgumentPosition.ARG1)
-                    Js.append(Jd * p.inv_std[:, None])
-            rr = np.concatenate(rs)
-            cost = float(rr @ rr)
-            return rr, (np.vstack(Js) if jac else None), cost, e
-
-        r, J, cost, e = residuals(q, True)
+        r, J, cost, e = energy(q, True)
         lam = damping
         it = 0
         for it in range(1, iterations + 1):
-            Ja = J[:, act]
-            H = Ja.T @ Ja
-            g = Ja.T @ r
-            improved = False
-            for _ in range(6):
-                A = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(H)))
-                try:
-                    step = -np.linalg.solve(A, g)
-                except np.linalg.LinAlgError:
-                    lam *= 10
-                    continue
-                dq = np.zeros(nv)
-                dq[act] = step
-                q_new = self.kin.clamp(pin.integrate(self.model, q, dq))
-                r_new, _, cost_new, e_new = residuals(q_new, False)
-                if cost_new < cost:
-                    gain = (cost - cost_new) / max(cost, 1e-12)
-                    q, cost = q_new, cost_new
-                    lam = max(lam / 3, 1e-7)
-                    improved = True
-                    break
-                lam *= 8
-            if not improved or np.linalg.norm(step) < 1e-6 or gain < rel_tol:
+            q, cost, lam, improved, step_norm, gain = self._damped_step(energy, q, r, J[:, act], cost, act, lam)
+            if not improved or step_norm < 1e-6 or gain < rel_tol:
                 break
-            r, J, cost, e = residuals(q, True)
-        e = e[present]
+            r, J, cost, e = energy(q, True)
+        e = e[energy.present]
         rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1)))) if len(e) else float("nan")
         return IKResult(q, cost, it, rms)
+
+    def _damped_step(self, energy: "_Energy", q: np.ndarray, r: np.ndarray, Ja: np.ndarray, cost: float,
+                     act: np.ndarray, lam: float) -> tuple[np.ndarray, float, float, bool, float, float]:
+        """One Levenberg-Marquardt iteration: up to 6 dampings until the energy falls.
+
+        Parameters
+        ----------
+        q : (18,) float
+            Current configuration; ``r (m,)`` its residuals, ``Ja (m, k)`` their Jacobian in the
+            ``k`` active tangent components ``act (17,) bool``, ``cost`` their squared norm.
+        lam : float
+            Damping (relative to the Gauss-Newton diagonal).
+
+        Returns
+        -------
+        q, cost : the new configuration and energy (unchanged if nothing improved)
+        lam : float
+            The damping for the next iteration.
+        improved : bool
+        step_norm : float
+            Norm of the accepted step (NaN if none).
+        gain : float
+            Relative fall of the energy (NaN if none).
+        """
+        H = Ja.T @ Ja
+        g = Ja.T @ r
+        for _ in range(6):
+            A = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(H)))
+            try:
+                step = -np.linalg.solve(A, g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            dq = np.zeros(self.model.nv)
+            dq[act] = step
+            q_new = self.kin.clamp(pin.integrate(self.model, q, dq))
+            _, _, cost_new, _ = energy(q_new, False)
+            if cost_new < cost:
+                gain = (cost - cost_new) / max(cost, 1e-12)
+                return q_new, cost_new, max(lam / 3, 1e-7), True, float(np.linalg.norm(step)), gain
+            lam *= 8
+        return q, cost, lam, False, float("nan"), float("nan")
+
+
+class _Energy:
+    """The energy :meth:`ShirtIK.solve` minimises, for one set of constraints and priors.
+
+    Present centroids: whitened pixel error ``sqrt_info @ (centroid - target)``; absent ones
+    (with a silhouette of their camera): the silhouette's distance at the centroid; both
+    under a Huber weight beyond ``ShirtIK.huber``; then each prior's
+    ``difference(q_ref, q) / std``. Calling it with ``q (18,)`` gives the stacked residuals
+    ``(m,)``, their Jacobian ``(m, 17)`` (or None), the energy (their squared norm) and the
+    pixel errors ``(n, 2)`` of the present centroids (0 for the others).
+    """
+
+    def __init__(self, ik: ShirtIK, cons: Constraints, priors, silhouettes: dict[int, Silhouette] | None) -> None:
+        self.ik, self.cons = ik, cons
+        self.absent = np.asarray(cons.absent, bool) & np.isin(cons.camera, list((silhouettes or {}).keys()))
+        self.present = ~self.absent & ~np.asarray(cons.absent, bool)
+        self.priors = [_Prior(np.asarray(qr, float), 1.0 / np.asarray(sd, float)) for qr, sd in priors]
+        self.layout = ik._layout(cons)
+        # constant over the solve: the whitening of present centroids (zero for the others)
+        # and the absent ones grouped by camera
+        self.info = np.where(self.present[:, None, None], np.asarray(cons.sqrt_info, float), 0.0)
+        self.target = np.where(self.present[:, None], cons.target_px, 0.0)
+        groups = [(silhouettes[int(ci)], np.flatnonzero(self.absent & (cons.camera == ci)))
+                  for ci in np.unique(cons.camera[self.absent])]
+        self.groups = [(sil, sel, cons.sqrt_info[sel, 0, 0]) for sil, sel in groups]
+
+    def __call__(self, qc: np.ndarray, jac: bool):
+        ik, nv, present = self.ik, self.ik.model.nv, self.present
+        c, Jc = ik.centroids(qc, self.cons, jac, self.layout)
+        e = np.where(present[:, None], c - self.target, 0.0)
+        r = np.einsum("nij,nj->ni", self.info, e)  # (n, 2) whitened
+        Jr = np.matmul(self.info, Jc) if jac else None
+        for sil, sel, inv in self.groups:
+            d, g = sil.sample(c[sel])
+            r[sel, 0], r[sel, 1] = d * inv, 0.0
+            if jac:
+                Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
+                Jr[sel, 1] = 0.0
+        norm = np.sqrt(np.einsum("ni,ni->n", r, r))
+        w = np.where(norm > ik.huber, np.sqrt(ik.huber / np.maximum(norm, 1e-12)), 1.0)
+        rs = [(r * w[:, None]).ravel()]
+        Js = [(Jr * w[:, None, None]).reshape(-1, nv)] if jac else []
+        for p in self.priors:
+            d = pin.difference(ik.model, p.q_ref, qc)
+            rs.append(d * p.inv_std)
+            if jac:
+                Jd = pin.dDifference(ik.model, p.q_ref, qc, pin.ArgumentPosition.ARG1)
+                Js.append(Jd * p.inv_std[:, None])
+        rr = np.concatenate(rs)
+        cost = float(rr @ rr)
+        return rr, (np.vstack(Js) if jac else None), cost, e
