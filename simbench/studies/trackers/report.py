@@ -104,85 +104,117 @@ def format_tables(result: StudyResult) -> str:
 def _discussion(result: StudyResult) -> list[str]:
     """Data-driven remarks on where the bench agrees with seed 000 and where not."""
     tot = result.total_losses()
-    names = result.trackers
-    lines = []
-    seeds = [n for n in SEED_TRACKERS if n in names]
+    seeds = [n for n in SEED_TRACKERS if n in result.trackers]
+    lines = _difficulty_remarks(result, seeds)
+    if OWN_TRACKER in result.trackers and seeds:
+        lines += _own_tracker_remarks(result, seeds, tot)
+    if seeds:
+        lines += _loss_remarks(result, seeds, tot)
+    if result.errors:
+        lines += _error_remarks(result, seeds)
+    return lines + _cost_remarks(result)
+
+
+def _difficulty_remarks(result: StudyResult, seeds: list[str]) -> list[str]:
+    """Our mean prediction error over the paper's, per category and seed tracker (the fitted difficulty)."""
     calib = [(c, n, result.errors[c][n].interval.mean / PAPER_ERRORS[c][n][2])
              for c in ERROR_CATEGORIES if c in result.errors for n in seeds if result.errors[c][n].n]
-    if calib:
-        lines.append("* **Difficulty.** The videos' motion was fitted to seed 000's Tables II-IV "
-                     "(`simbench study fit-difficulty`, see the setup); our mean prediction error over the paper's: "
-                     + "; ".join(f"{c} " + ", ".join(f"`{n}` {r:.2f}" for cc, n, r in calib if cc == c)
-                                 for c in ERROR_CATEGORIES if any(cc == c for cc, _, _ in calib)) + ".")
-    if OWN_TRACKER in names and seeds:
-        beaten = [n for n in seeds if tot[OWN_TRACKER] < tot[n]]
-        lines.append(f"* **Own tracker.** `{OWN_TRACKER}` lost {tot[OWN_TRACKER]} videos in total against "
-                     + ", ".join(f"`{n}` {tot[n]}" for n in seeds) + ": "
-                     + ("fewer than each of seed 000's trackers." if len(beaten) == len(seeds)
-                        else "NOT fewer than " + ", ".join(f"`{n}`" for n in seeds if n not in beaten) + "."))
-        worse = [(c, n) for c in result.losses for n in seeds if result.losses[c][OWN_TRACKER] > result.losses[c][n]]
-        if worse:
-            lines.append("  Categories where it loses more videos than a seed tracker: "
-                         + ", ".join(f"{c} (vs `{n}`: {result.losses[c][OWN_TRACKER]} > {result.losses[c][n]})"
-                                     for c, n in worse) + ".")
-        own_lost = [r for r in result.videos if r.runs[OWN_TRACKER].lost]
-        if own_lost:
-            lines.append(f"  Its lost videos (label: first frame, reason; which seed trackers lost the same video): "
-                         + "; ".join(f"{r.category} {r.index} ("
-                                     + ", ".join(f"{m}: {r.runs[OWN_TRACKER].losses.first_frame[m]} "
-                                                 f"{r.runs[OWN_TRACKER].losses.reason_names()[m]}"
-                                                 for m in np.flatnonzero(r.runs[OWN_TRACKER].losses.lost))
-                                     + "; " + (", ".join(f"`{n}`" for n in seeds if r.runs[n].lost) or "none") + ")"
-                                     for r in own_lost) + ".")
-    if seeds:
-        rank_bench = sorted(seeds, key=lambda n: tot[n])
-        paper_tot = {n: sum(PAPER_LOSSES[c][n] for c in PAPER_LOSSES if c in result.losses) for n in seeds}
-        rank_paper = sorted(seeds, key=lambda n: paper_tot[n])
-        lines.append("* **Ranking by losses** (same categories). Seed 000: "
-                     + " < ".join(f"`{n}` {paper_tot[n]}" for n in rank_paper)
-                     + "; bench: " + " < ".join(f"`{n}` {tot[n]}" for n in rank_bench)
-                     + (" -- the same order." if rank_bench == rank_paper else " -- a different order."))
-        per_cat = {c: sum(result.losses[c][n] for n in seeds) for c in result.losses}
-        hard = max(per_cat, key=per_cat.get)
-        easy = [c for c, v in per_cat.items() if v == 0]
-        text = (f"hardest for seed 000's trackers on the bench: `{hard}` ({per_cat[hard]} losses over the three; "
-                "the paper's hardest: marker swapping, 36)") if per_cat[hard] > 0 else ""
-        if easy:
-            text += ("; " if text else "") + (f"none of them lost a marker in {', '.join(f'`{c}`' for c in easy)}, where "
-                                              "the paper counts " + ", ".join(f"{sum(PAPER_LOSSES[c].values())}" for c in easy)
-                                              + " losses")
-        lines.append(f"* **Categories.** {text[0].upper() + text[1:]}.")
-        strict, unrec = tm.total_losses(result.losses_strict), tm.total_losses(result.losses_unrecovered)
-        lines.append("* **Definition matters.** Scoring the frames where the two swap markers' blobs merge as well "
-                     "(strict) gives " + ", ".join(f"`{n}` {strict[n]}" for n in names)
-                     + "; counting only losses a label never recovered from gives "
-                     + ", ".join(f"`{n}` {unrec[n]}" for n in names) + ".")
-    if result.errors:
-        agree = []
-        for c, row in result.errors.items():
-            m = {n: row[n].interval.mean for n in seeds if row[n].n}
-            if len(m) >= 2:
-                agree.append((c, min(m, key=m.get), max(m, key=m.get)))
-        if agree:
-            lines.append("* **Prediction errors.** Smallest / largest mean among seed 000's trackers: "
-                         + "; ".join(f"{c}: `{lo}` / `{hi}`" for c, lo, hi in agree)
-                         + " (paper: `alpha_beta` / `condensation` in every category). Our means are "
-                         + ", ".join(f"{c} {min(row[n].interval.mean for n in seeds if row[n].n):.1f}-"
-                                     f"{max(row[n].interval.mean for n in seeds if row[n].n):.1f} px"
-                                     for c, row in result.errors.items() if any(row[n].n for n in seeds))
-                         + " against the paper's 7-39, 11-40 and 3-23 px.")
-        nonnormal = sum(1 for row in result.errors.values() for s in row.values() if s.n >= 3 and not s.normality.normal)
-        total = sum(1 for row in result.errors.values() for s in row.values() if s.n >= 3)
-        lines.append(f"* **Normality.** Shapiro-Wilk rejects normality (p < 0.01) for {nonnormal} of {total} error "
-                     "samples, as the paper found; the t intervals lean on the central limit theorem as the paper's do.")
-    ratios = cost_ratios(result)
-    if ratios:
-        lines.append("* **Cost.** Median cost at the most markers over that at the fewest: "
-                     + ", ".join(f"`{n}` x{o:.1f}" + (f" (paper x{p:.1f})" if p else "") for n, (o, p) in ratios.items())
-                     + ". The bench's trackers are vectorised over markers, so a fixed per-frame overhead weighs more "
-                     "than the per-marker work and the cost grows far less than OpenMoCap's per-marker loops. Maxima "
-                     "are single frames disturbed by the (shared) machine.")
+    if not calib:
+        return []
+    return ["* **Difficulty.** The videos' motion was fitted to seed 000's Tables II-IV "
+            "(`simbench study fit-difficulty`, see the setup); our mean prediction error over the paper's: "
+            + "; ".join(f"{c} " + ", ".join(f"`{n}` {r:.2f}" for cc, n, r in calib if cc == c)
+                        for c in ERROR_CATEGORIES if any(cc == c for cc, _, _ in calib)) + "."]
+
+
+def _own_tracker_remarks(result: StudyResult, seeds: list[str], tot: dict[str, int]) -> list[str]:
+    """The bench's own tracker against seed 000's: total lost videos (``tot``), categories where it
+    loses more, and each of its lost videos (first frame, reason, which seed trackers lost it too)."""
+    beaten = [n for n in seeds if tot[OWN_TRACKER] < tot[n]]
+    lines = [f"* **Own tracker.** `{OWN_TRACKER}` lost {tot[OWN_TRACKER]} videos in total against "
+             + ", ".join(f"`{n}` {tot[n]}" for n in seeds) + ": "
+             + ("fewer than each of seed 000's trackers." if len(beaten) == len(seeds)
+                else "NOT fewer than " + ", ".join(f"`{n}`" for n in seeds if n not in beaten) + ".")]
+    worse = [(c, n) for c in result.losses for n in seeds if result.losses[c][OWN_TRACKER] > result.losses[c][n]]
+    if worse:
+        lines.append("  Categories where it loses more videos than a seed tracker: "
+                     + ", ".join(f"{c} (vs `{n}`: {result.losses[c][OWN_TRACKER]} > {result.losses[c][n]})"
+                                 for c, n in worse) + ".")
+    own_lost = [r for r in result.videos if r.runs[OWN_TRACKER].lost]
+    if own_lost:
+        lines.append(f"  Its lost videos (label: first frame, reason; which seed trackers lost the same video): "
+                     + "; ".join(f"{r.category} {r.index} ("
+                                 + ", ".join(f"{m}: {r.runs[OWN_TRACKER].losses.first_frame[m]} "
+                                             f"{r.runs[OWN_TRACKER].losses.reason_names()[m]}"
+                                             for m in np.flatnonzero(r.runs[OWN_TRACKER].losses.lost))
+                                 + "; " + (", ".join(f"`{n}`" for n in seeds if r.runs[n].lost) or "none") + ")"
+                                 for r in own_lost) + ".")
     return lines
+
+
+def _loss_remarks(result: StudyResult, seeds: list[str], tot: dict[str, int]) -> list[str]:
+    """Seed 000's trackers ranked by lost videos (bench ``tot`` and paper), the hardest and easiest
+    categories, and the totals under the strict and the never-recovered loss definitions."""
+    rank_bench = sorted(seeds, key=lambda n: tot[n])
+    paper_tot = {n: sum(PAPER_LOSSES[c][n] for c in PAPER_LOSSES if c in result.losses) for n in seeds}
+    rank_paper = sorted(seeds, key=lambda n: paper_tot[n])
+    lines = ["* **Ranking by losses** (same categories). Seed 000: "
+             + " < ".join(f"`{n}` {paper_tot[n]}" for n in rank_paper)
+             + "; bench: " + " < ".join(f"`{n}` {tot[n]}" for n in rank_bench)
+             + (" -- the same order." if rank_bench == rank_paper else " -- a different order.")]
+    per_cat = {c: sum(result.losses[c][n] for n in seeds) for c in result.losses}
+    hard = max(per_cat, key=per_cat.get)
+    easy = [c for c, v in per_cat.items() if v == 0]
+    text = (f"hardest for seed 000's trackers on the bench: `{hard}` ({per_cat[hard]} losses over the three; "
+            "the paper's hardest: marker swapping, 36)") if per_cat[hard] > 0 else ""
+    if easy:
+        text += ("; " if text else "") + (f"none of them lost a marker in {', '.join(f'`{c}`' for c in easy)}, where "
+                                          "the paper counts " + ", ".join(f"{sum(PAPER_LOSSES[c].values())}" for c in easy)
+                                          + " losses")
+    lines.append(f"* **Categories.** {text[0].upper() + text[1:]}.")
+    names = result.trackers
+    strict, unrec = tm.total_losses(result.losses_strict), tm.total_losses(result.losses_unrecovered)
+    lines.append("* **Definition matters.** Scoring the frames where the two swap markers' blobs merge as well "
+                 "(strict) gives " + ", ".join(f"`{n}` {strict[n]}" for n in names)
+                 + "; counting only losses a label never recovered from gives "
+                 + ", ".join(f"`{n}` {unrec[n]}" for n in names) + ".")
+    return lines
+
+
+def _error_remarks(result: StudyResult, seeds: list[str]) -> list[str]:
+    """Which seed tracker has the smallest / largest mean prediction error (px) per category, our
+    range of means against the paper's, and how many error samples Shapiro-Wilk finds non-normal."""
+    lines = []
+    agree = []
+    for c, row in result.errors.items():
+        m = {n: row[n].interval.mean for n in seeds if row[n].n}
+        if len(m) >= 2:
+            agree.append((c, min(m, key=m.get), max(m, key=m.get)))
+    if agree:
+        lines.append("* **Prediction errors.** Smallest / largest mean among seed 000's trackers: "
+                     + "; ".join(f"{c}: `{lo}` / `{hi}`" for c, lo, hi in agree)
+                     + " (paper: `alpha_beta` / `condensation` in every category). Our means are "
+                     + ", ".join(f"{c} {min(row[n].interval.mean for n in seeds if row[n].n):.1f}-"
+                                 f"{max(row[n].interval.mean for n in seeds if row[n].n):.1f} px"
+                                 for c, row in result.errors.items() if any(row[n].n for n in seeds))
+                     + " against the paper's 7-39, 11-40 and 3-23 px.")
+    nonnormal = sum(1 for row in result.errors.values() for s in row.values() if s.n >= 3 and not s.normality.normal)
+    total = sum(1 for row in result.errors.values() for s in row.values() if s.n >= 3)
+    lines.append(f"* **Normality.** Shapiro-Wilk rejects normality (p < 0.01) for {nonnormal} of {total} error "
+                 "samples, as the paper found; the t intervals lean on the central limit theorem as the paper's do.")
+    return lines
+
+
+def _cost_remarks(result: StudyResult) -> list[str]:
+    """Each tracker's median cost at the most markers over that at the fewest (and the paper's ratio)."""
+    ratios = cost_ratios(result)
+    if not ratios:
+        return []
+    return ["* **Cost.** Median cost at the most markers over that at the fewest: "
+            + ", ".join(f"`{n}` x{o:.1f}" + (f" (paper x{p:.1f})" if p else "") for n, (o, p) in ratios.items())
+            + ". The bench's trackers are vectorised over markers, so a fixed per-frame overhead weighs more "
+            "than the per-marker work and the cost grows far less than OpenMoCap's per-marker loops. Maxima "
+            "are single frames disturbed by the (shared) machine."]
 
 
 _STATIC_DISCUSSION = """\
