@@ -31,6 +31,7 @@ __all__ = [
     "train_colour_model",
     "labelled_colour_means",
     "solve_white_balance",
+    "initial_white_balance",
     "ReferenceIlluminations",
     "NOT_SHIRT",
     "train_other_colours",
@@ -339,3 +340,22 @@ class ReferenceIlluminations:
             self.matrices.append(W.copy())
             return True
         return False
+
+
+def initial_white_balance(image: np.ndarray, labels: np.ndarray, colour_model: ColourModel) -> np.ndarray:
+    """``W`` from one labelled frame (section 5.1): the user's scribbles, as colour ids per pixel (-1 unlabelled,
+    :data:`mocap.shirt.colour_model.NOT_SHIRT` for not-shirt pixels, which are ignored here).
+
+    Least squares on the labelled colours' means, each residual in its colour's
+    Mahalanobis metric (:func:`mocap.shirt.colour_model.solve_white_balance`).
+
+    Raises
+    ------
+    MocapInputError
+        When no colour has enough labelled pixels.
+    """
+    means, counts = labelled_colour_means(image, labels, colour_model.n_colours, erode_px=1)
+    W = solve_white_balance(means, colour_model.means, np.sqrt(counts), whiten=colour_model.whiten)
+    if W is None:
+        raise MocapInputError("initial white balance: no shirt colour has enough labelled pixels; scribble on more patches of the first frame")
+    return W

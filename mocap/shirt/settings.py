@@ -1,0 +1,233 @@
+"""What the colour-shirt pipeline is set with and what it returns per frame.
+
+:class:`ShirtPipelineParams` (the paper's values by default, and the baseline's),
+:data:`STAGES` (the timed stages of a frame) and :class:`FrameEstimate` with a
+:class:`CameraObservation` per camera; :class:`mocap.shirt.pipeline.ShirtTracker` uses them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mocap.errors import MocapInputError
+from mocap.shirt.background import BackgroundParams
+from mocap.shirt.classify import Classification
+from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation
+from mocap.shirt.ik import Silhouette
+from mocap.shirt.pose_database import Neighbours, TinyMap
+from mocap.shirt.shirt_model import CropView
+
+__all__ = ["STAGES", "ShirtPipelineParams", "CameraObservation", "FrameEstimate"]
+
+STAGES: tuple[str, ...] = ("background", "histogram_search", "classify", "database", "global_fit", "pose_assisted", "ik",
+                           "white_balance")
+"""Timed stages of a frame, in order."""
+
+@dataclass(frozen=True)
+class ShirtPipelineParams:
+    """Settings of the pipeline (defaults: the paper's values where it gives them).
+
+    Attributes
+    ----------
+    histogram : HistogramSearchParams
+    background : BackgroundParams or None
+        None: no background subtraction.
+    crop_factor : float
+        The classified crop (centred where the histogram search found the shirt) is at
+        least this many times the search's scale ``s`` ...
+    crop_factor_first : float
+        ... (this many on a first frame) ...
+    crop_margin : float
+        ... and large enough to hold the previous pose's shirt, with this margin: the
+        search's scale follows the most colourful part (the torso), the crop must hold
+        the arms.
+    crop_growth : float
+        When classified shirt pixels touch the crop's border, the crop grows by this
+        factor and step 1 runs again (once).
+    crop_growth_min_pixels : int
+        Classified pixels in the crop's 2-pixel border band that count as touching: a
+        limb crossing the edge covers tens of them; a few clutter or rim pixels that
+        classify as shirt colours must not grow the crop on every frame (at 4 pixels the
+        crop grew on nearly every frame of the office scene and the arms were lost at a
+        coarser working resolution).
+    work_size : int
+        Working resolution of the crop (pixels per side, at most).
+    wb_size : int
+        Resolution of the final pose's id map for the white-balance update.
+    wb_every : int
+        Step 5 runs on every ``wb_every``-th frame, and on every frame where step 1
+        classified poorly (a change of light): the paper updates ``W`` on every frame,
+        but in steady light consecutive estimates barely differ.
+    render_size : int
+        Resolution of the blended pose's id map in each crop (step 3's distance
+        transforms and the IK's anchors).
+    distance_reduce : int
+        Step 3's distance transforms (and the patch split's) run on cells of this many
+        render pixels per side (2: 48 x 48 cells, a cell 3 working pixels): the prior
+        weighs distances of a fraction of the shirt, and a transform costs the square of
+        its side.
+    gaussian_threshold, assisted_threshold : float
+        ``T`` of step 1 (3) and step 3 (5).
+    poor_fraction : float
+        Step 1 classifying less than this fraction of the foreground triggers the reference
+        search (0.4).  The crop here holds the whole upper body with head and hips, not only
+        the shirt, so the fraction is taken relative to the one of the first (labelled)
+        frame.
+    prior_c : float
+        ``C = prior_c / s`` (6).
+    neighbours : int
+        Database neighbours per camera (10).
+    pose_prior : bool
+        Step 3 and the IK's prior terms (off in the baseline).
+    adaptive_white_balance : bool
+        Step 5 and the reference-illumination search (off in the baseline).
+    reference_distance : float
+        Frobenius distance for a new reference illumination (0.5).
+    ik_iterations, global_iterations : int
+        Levenberg-Marquardt iterations of step 4 and of the 6-DoF fit (at most).
+    ik_rel_tol : float
+        Both stop earlier when an iteration lowers the energy by less than this fraction.
+    poor_fit, recovery_passes, recovery_motion_scale, recovery_blend_scale : float, int, float, float
+        Full method: when step 4's centroid RMS exceeds ``poor_fit`` shirt sizes, up to
+        ``recovery_passes`` more split-and-solve passes run with the motion prior's
+        spread times ``recovery_motion_scale`` and the blend prior's times
+        ``recovery_blend_scale`` (an addition: the previous pose is then likely wrong and
+        would hold the estimate near it).
+    arm_hypotheses : bool
+        Full method, first frame and lost frames: try each arm in the configuration of
+        every database neighbour, the blend and the previous pose; solve again from the
+        arms that agree best with step 1 and keep the result when it agrees better by more
+        than ``hypothesis_margin`` (a fraction of the classified pixels).
+    lock_on_yaws : int
+        Full method, first frame: the solved pose is also tried upright at this many
+        headings (0: not), each split and solved again, and the one that agrees best with
+        step 1 is kept (:meth:`mocap.shirt.pipeline.ShirtTracker._root_hypotheses`).
+    arm_search, arm_search_arms, arm_search_margin, arm_search_top : bool, int, float, int
+        Full method, every frame: each arm of the solved pose and ``arm_search_arms`` arms
+        of the database (and this frame's neighbours) are scored against step 1 by
+        projected sample points (:mod:`mocap.shirt.arm_search`, a few ms); when a candidate
+        scores ``arm_search_margin`` shirt sizes better than the pose's own arm, the
+        ``arm_search_top`` best candidates of that arm are verified and solved as in
+        ``arm_hypotheses`` (also on the first frame and lost frames, with the neighbours).
+    min_patch_pixels : int
+        A patch needs this many classified working pixels to constrain the IK.
+    correspondence_passes : int
+        Step 4 solves, each after splitting the colours into patches with the pose of
+        the previous solve (the first uses the blended pose, as the paper; more passes
+        are an addition for a database far from the pose).
+    patch_gate : float
+        Classified pixels farther than this fraction of the shirt's size from every
+        rendered patch of their colour do not count towards a centroid.
+    absence_constraints : bool
+        Add, for each patch the pose shows in a camera that does not see it at all, a
+        term pulling it inside the seen shirt (where it can be hidden).  An addition to
+        the paper's centroid constraints: without it a limb seen by one camera only can
+        swing along that camera's rays.
+    global_fit_std : float
+        Assumed error of the blended pose's centroids, in shirt sizes (6-DoF fit weights).
+    baseline_damping_std : float
+        Baseline only: weak pull (rad / m) towards the blended pose that keeps the
+        unconstrained directions of the IK determined (plain damping).
+    keep_classification : bool
+        Keep per-camera classification maps in the results (for ROC curves).
+    """
+
+    histogram: HistogramSearchParams = HistogramSearchParams()
+    background: BackgroundParams | None = BackgroundParams()
+    crop_factor: float = 4.5
+    crop_factor_first: float = 6.0
+    crop_margin: float = 1.2
+    crop_growth: float = 1.5
+    crop_growth_min_pixels: int = 20
+    work_size: int = 144
+    wb_size: int = 64
+    wb_every: int = 1
+    render_size: int = 96
+    distance_reduce: int = 2
+    gaussian_threshold: float = 3.0
+    assisted_threshold: float = 5.0
+    poor_fraction: float = 0.4
+    prior_c: float = 6.0
+    neighbours: int = 10
+    pose_prior: bool = True
+    adaptive_white_balance: bool = True
+    reference_distance: float = 0.5
+    ik_iterations: int = 8
+    global_iterations: int = 10
+    ik_rel_tol: float = 1e-5
+    poor_fit: float = 0.12
+    recovery_passes: int = 3
+    recovery_motion_scale: float = 4.0
+    recovery_blend_scale: float = 1.0
+    arm_hypotheses: bool = True
+    hypothesis_margin: float = 0.01
+    lock_on_yaws: int = 8
+    arm_search: bool = True
+    arm_search_arms: int = 400
+    arm_search_margin: float = 0.03
+    arm_search_top: int = 3
+    min_patch_pixels: int = 5
+    correspondence_passes: int = 2
+    absence_constraints: bool = True
+    patch_gate: float = 0.2
+    global_fit_std: float = 0.03
+    baseline_damping_std: float = 3.0
+    baseline_previous_start: bool = True
+    keep_classification: bool = False
+
+    def __post_init__(self) -> None:
+        if self.wb_every < 1 or self.distance_reduce < 1 or self.render_size < 8 * self.distance_reduce:
+            raise MocapInputError(f"ShirtPipelineParams: wb_every and distance_reduce must be at least 1 and render_size at least 8 cells; got {self}")
+        if self.crop_factor <= 0 or self.work_size < 16 or self.wb_size < 8 or self.neighbours < 1:
+            raise MocapInputError(f"ShirtPipelineParams: crop_factor, work_size (>= 16), wb_size (>= 8) and neighbours (>= 1) must be positive; got {self}")
+
+    def baseline(self) -> "ShirtPipelineParams":
+        """The baseline's settings: no pose prior, no adaptive white balance."""
+        return replace(self, pose_prior=False, adaptive_white_balance=False)
+
+
+@dataclass
+class CameraObservation:
+    """What one camera contributed to a frame (kept with ``keep_classification``)."""
+
+    location: ShirtLocation | None = None
+    view: CropView | None = None
+    step1: Classification | None = None
+    final: Classification | None = None
+    tiny: TinyMap | None = None
+    neighbours: Neighbours | None = None
+    ray_rotation: np.ndarray | None = None
+    W: np.ndarray | None = None
+    foreground: np.ndarray | None = None
+    pixels: tuple[np.ndarray, np.ndarray] | None = None  # flat indices and linear RGB of the crop's foreground pixels
+    silhouette: Silhouette | None = None
+    n_constraints: int = 0
+
+
+@dataclass
+class FrameEstimate:
+    """The pipeline's output for one frame.
+
+    Attributes
+    ----------
+    q : (18,) float
+        Upper-body configuration (:mod:`mocap.shirt.shirt_model`); NaN when the frame failed.
+    q_blend : (18,) float
+        The blended database pose after the 6-DoF fit (NaN if none).
+    q_prior : (18,) float or None
+        The pose whose id map steps 3 and 4 used (the blend, or the previous pose).
+    classified_fraction : (C,) float
+        Final classification: classified over foreground pixels of each camera's crop.
+    timings_ms : dict[str, float]
+        Milliseconds per stage (:data:`STAGES`).
+    cameras : list[CameraObservation]
+    """
+
+    q: np.ndarray
+    q_blend: np.ndarray
+    classified_fraction: np.ndarray
+    timings_ms: dict[str, float]
+    cameras: list[CameraObservation] = field(default_factory=list)
+    q_prior: np.ndarray | None = None
