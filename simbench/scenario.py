@@ -267,14 +267,35 @@ class SensorConfig(FrozenModel):
     electrons_per_unit: Real = Field(4.0e5, gt=0.0, le=1e10, description="sensor sensitivity: e- per radiance unit per second")
     clock: ClockConfig | None = Field(None, description="each camera's own clock (offset, drift, jitter, drops); "
                                       "none: synchronised global shutters")
+    readout_ms: Real = Field(0.0, ge=0.0, le=1000.0, description="rolling shutter: row y of an H-row frame is exposed "
+                             "y / H * readout later than row 0 (the frame's timestamp); 0 = global shutter; "
+                             "must fit in 1/fps")
+    auto_exposure: StrictBool = Field(False, description="auto exposure: the gain follows the frame's mean level "
+                                      "towards ae_target with time constant ae_adapt_s")
+    ae_target: Real = Field(0.18, gt=0.0, lt=1.0, description="auto exposure's target mean level (linear, of full scale)")
+    ae_adapt_s: Real = Field(0.1, gt=0.0, le=600.0, description="time constant of auto exposure (s)")
+    ae_max_gain: Real = Field(16.0, ge=1.0, le=64.0, description="auto exposure's largest gain (times `gain`)")
+    vignetting: Real = Field(0.0, ge=0.0, le=0.95, description="relative light loss at the image corners "
+                             "(radial, 1 - v * (r / r_corner)^2); 0 = none")
 
     @model_serializer(mode="wrap")
     def _omit_unset_clock(self, handler):
-        # Sensors without a clock serialise (and hash) as they did before the field.
+        # Sensors without a clock (and the later fields at their defaults) serialise (and hash)
+        # as they did before those fields.
         data = handler(self)
-        if isinstance(data, dict) and data.get("clock", 0) is None:
-            del data["clock"]
+        if isinstance(data, dict):
+            if data.get("clock", 0) is None:
+                del data["clock"]
+            for key, default in _LATER_SENSOR_FIELDS.items():
+                if key in data and data[key] == default:
+                    del data[key]
         return data
+
+
+#: Sensor fields added after scenarios' content hashes were recorded: omitted from a sensor's
+#: serialisation at their defaults, so that older scenarios hash as before.
+_LATER_SENSOR_FIELDS = {"readout_ms": 0.0, "auto_exposure": False, "ae_target": 0.18, "ae_adapt_s": 0.1,
+                        "ae_max_gain": 16.0, "vignetting": 0.0}
 
 
 class CameraConfig(FrozenModel):
@@ -467,6 +488,17 @@ class MarkerPipelineConfig(FrozenModel):
     smoothing: Literal["none", "butterworth", "rts"] = "none"
     max_gap_frames: Int = Field(10, ge=0, le=100_000)
     solve_skeleton: StrictBool = True
+    rolling_shutter_correction: StrictBool = Field(
+        True, description="with a rolling shutter (sensor.readout_ms > 0): each detection's time is its frame's "
+        "timestamp + row / height * readout, and the blobs are interpolated to the frame timestamps before triangulation")
+
+    @model_serializer(mode="wrap")
+    def _omit_default_correction(self, handler):
+        # Serialised (and hashed) as before the field while it is at its default.
+        data = handler(self)
+        if isinstance(data, dict) and data.get("rolling_shutter_correction") is True:
+            del data["rolling_shutter_correction"]
+        return data
 
     @field_validator("tracker")
     @classmethod
@@ -612,6 +644,9 @@ class Scenario(FrozenModel):
         self._cameras_see_the_subject()
         if self.sensor.exposure_ms > 1000.0 / self.fps + 1e-9:
             raise ValueError(f"sensor.exposure_ms = {self.sensor.exposure_ms} exceeds the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
+        if self.sensor.readout_ms > 1000.0 / self.fps + 1e-9:
+            raise field_error("sensor.readout_ms", self.sensor.readout_ms,
+                              f"a rolling shutter's readout fits in the frame interval 1/fps = {1000.0 / self.fps:.2f} ms")
         if self.markers_pipeline.calibration == "estimated" and self.calibration_scene is None:
             raise ValueError("markers_pipeline.calibration = 'estimated' needs a [calibration_scene] section "
                              "(the board and wand pictures the calibration is estimated from)")

@@ -70,6 +70,16 @@ def run_render_benchmark(n_frames: int = 60) -> dict[str, float]:
     log.info(f"{'lit RGB, 4 cameras, synchronised (iterate_frames)':<52} {sync4:8.1f} camera-frames/s")
     log.info(f"{'lit RGB, 4 cameras on their own clocks (+-500 ms, 100 ppm)':<52} {own4:8.1f} camera-frames/s   "
              f"(ratio to synchronised {own4 / sync4:.2f}x)")
+    # Rolling shutter (issue 15): each row band at its own instant, so a frame is rendered at as
+    # many sub-frames as keep the image motion over the readout within the blur step.
+    rolling = base.with_overrides({"sensor.readout_ms": 25.0})
+    rs4 = measure_frames(rolling, n_frames)
+    results["lit RGB, 4 cameras, rolling shutter 25 ms readout (iterate_frames)"] = rs4
+    results["ratio_rolling_shutter_vs_global"] = rs4 / sync4
+    sub_rs = _mean_subframes(rolling, n_frames)
+    results["rolling_shutter_mean_subframes"] = sub_rs
+    log.info(f"{'lit RGB, 4 cameras, rolling shutter 25 ms readout':<52} {rs4:8.1f} camera-frames/s   "
+             f"(mean {sub_rs:.1f} sub-frames; ratio to the global shutter {rs4 / sync4:.2f}x)")
     lit1 = results["lit RGB, 1 camera (antialias 1)"]
     raster = results["lit RGB rasterise + read back only (no sensor), 1 camera"]
     ref = measure_mujoco_renderer(base, n_frames)
@@ -130,6 +140,16 @@ def measure_frames(sc: "Scenario", n_frames: int) -> float:
             for _ in iterate_frames(fr, times[k: k + 1], stage.pose_at, sc.seed):
                 pass
         return frames_per_second(one, n_frames) * len(stage.cameras)
+
+
+def _mean_subframes(sc: "Scenario", n_frames: int) -> float:
+    """Mean sub-frames per frame the scenario's renderer plans over the measured frames."""
+    from simbench.render.frames import plan_subframes  # after the GL platform is set
+    from simbench.stage.build import build_stage
+
+    stage = build_stage(sc)
+    with stage.frame_renderer() as fr:
+        return float(np.mean([len(p) for p in plan_subframes(fr, stage.frame_times()[: n_frames + 3], stage.pose_at)]))
 
 
 def measure_mujoco_renderer(sc: "Scenario", n_frames: int) -> float:

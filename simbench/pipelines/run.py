@@ -32,6 +32,7 @@ from mocap.errors import MocapInputError
 from mocap.labelling import save_template
 from mocap.marker_pipeline import (DetectionStream, MarkerCapture, MarkerPipelineParams, capture_from_detections,
                                    capture_unsynchronised, export_capture)
+from mocap.rolling_shutter import capture_rolling_shutter, correct_rolling_shutter
 from mocap.synchronisation import ClockSync
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
@@ -40,6 +41,7 @@ from simbench.pipelines.exchange.inputs import write_inputs
 from simbench.pipelines.exchange.results import read_results, score_results
 from simbench.output_dir import AtomicOutputDir
 from simbench.pipelines.calibration import run_calibration
+from simbench.pipelines.exposure import score_light_events
 from simbench.pipelines.markers import label_template, pipeline_params, score_markers, score_sync, subject_model, sync_report
 from simbench.pipelines.report import write_run_report
 from simbench.pipelines.shirt import run_shirt_capture
@@ -165,6 +167,7 @@ class _Run:
         self.capture: MarkerCapture | None = None
         self.sync: ClockSync | None = None  # the estimated clocks of unsynchronised cameras
         self.detection_noise_px = 0.0  # injected 2D detection noise (run_scenario's argument)
+        self.brightness: list[np.ndarray] | None = [] if scenario.lighting.events and self.has_markers else None
 
     def render(self, progress) -> None:
         """Render every frame: videos written, detections streamed, the contact sheet's frames kept;
@@ -179,6 +182,8 @@ class _Run:
                     write(fo)
                 if self.stream is not None:
                     self.stream.add(list(fo.images))
+                if self.brightness is not None:  # light events: each frame's mean grey level (subsampled)
+                    self.brightness.append(fo.images[:, ::8, ::8].mean(axis=(1, 2, 3)))
                 if fo.index in keep:
                     self.kept_frames[fo.index] = fo.images.copy()
 
@@ -227,6 +232,14 @@ class _Run:
         if self.capture is not None:
             with self.stages.run("scoring"):
                 self.metrics.update(score_markers(self._gt_at_reference_instants(), self.capture))
+        if self.capture is not None and self.gt.readout_s > 0:
+            with self.stages.run("rolling-shutter comparison"):
+                self._rolling_shutter_comparison(params)
+        if self.brightness:
+            with self.stages.run("light events"):
+                metrics, section = score_light_events(self.scenario, self.gt, self.stream.detections, np.stack(self.brightness))
+                self.metrics.update(metrics)
+                self.report_sections += section
         if self.sync is not None:
             with self.stages.run("synchronisation scoring"):
                 self.metrics.update(score_sync(self.sync, self.gt))
@@ -287,16 +300,59 @@ class _Run:
             self.timings["command_ms_per_frame"] = 1e3 * done.seconds / max(self.gt.n_frames, 1)
         self.timings["pipeline_s"] = time.perf_counter() - t1
 
-    def _capture_with(self, params: MarkerPipelineParams) -> MarkerCapture:
+    def _rolling_shutter_comparison(self, params: MarkerPipelineParams) -> None:
+        """With a rolling shutter: the pipeline again with the row-time correction switched the
+        other way, so that ``rolling_shutter.rmse_corrected_mm`` and ``rolling_shutter.rmse_uncorrected_mm``
+        are both in every run (``markers.rmse_mm`` is the one ``[markers_pipeline]`` asks for)."""
+        on = self.scenario.markers_pipeline.rolling_shutter_correction
+        other = score_markers(self._gt_at_reference_instants(), self._capture_with(params, correct_rows=not on, keep_sync=False))
+        mine = {k: self.metrics[k] for k in ("markers.rmse_mm", "markers.reconstructed_fraction", "markers.label_swaps")}
+        theirs = {k: other[k] for k in mine}
+        corrected, uncorrected = (mine, theirs) if on else (theirs, mine)
+        self.metrics["rolling_shutter.readout_ms"] = self.gt.readout_s * 1e3
+        for name, vals in (("corrected", corrected), ("uncorrected", uncorrected)):
+            self.metrics[f"rolling_shutter.rmse_{name}_mm"] = vals["markers.rmse_mm"]
+            self.metrics[f"rolling_shutter.reconstructed_fraction_{name}"] = vals["markers.reconstructed_fraction"]
+            self.metrics[f"rolling_shutter.label_swaps_{name}"] = vals["markers.label_swaps"]
+        self.report_sections += [
+            "## Rolling shutter", "",
+            f"Readout {self.gt.readout_s * 1e3:.1f} ms: row `y` of a frame is exposed `y / H * readout` after its "
+            f"timestamp. The pipeline ran with the row-time correction {'on' if on else 'off'} (`markers.rmse_mm`) "
+            f"and again with it {'off' if on else 'on'}.", "",
+            "| row-time correction | marker RMSE (mm) | reconstructed | label swaps |", "|---|---|---|---|",
+            f"| on | {corrected['markers.rmse_mm']:.3f} | {corrected['markers.reconstructed_fraction']:.4f} | "
+            f"{corrected['markers.label_swaps']:.0f} |",
+            f"| off | {uncorrected['markers.rmse_mm']:.3f} | {uncorrected['markers.reconstructed_fraction']:.4f} | "
+            f"{uncorrected['markers.label_swaps']:.0f} |", ""]
+
+    def _capture_with(self, params: MarkerPipelineParams, correct_rows: bool | None = None,
+                      keep_sync: bool = True) -> MarkerCapture:
+        """The marker pipeline on the streamed detections; with a rolling shutter, their rows' times
+        corrected (:mod:`mocap.rolling_shutter`) when ``correct_rows`` (default: the scenario's
+        ``markers_pipeline.rolling_shutter_correction``)."""
         reference = self.stage.capture_reference()  # a real capture: rigid clusters instead of a skeleton
         rng = np.random.default_rng(np.random.SeedSequence([self.scenario.seed, 0x7AC]))
-        if self._unsynchronised():  # each camera's own timestamps: synchronise from the markers' motion
-            capture, self.sync = capture_unsynchronised(
-                self._detections(), list(self.gt.camera_timestamps.T), self.calibration, label_template(self.stage),
+        detections = self._detections()
+        unsynced = self._unsynchronised()
+        stamps = list(self.gt.camera_timestamps.T) if unsynced else [self.gt.times] * len(detections)
+        if correct_rows is None:
+            correct_rows = self.scenario.markers_pipeline.rolling_shutter_correction
+        marker_model = reference.marker_model() if reference is not None else None
+        if self.gt.readout_s > 0 and correct_rows:
+            if not unsynced:  # two passes: links, then the reconstructed markers' own motion
+                return capture_rolling_shutter(detections, self.gt.times, self.gt.readout_s, self.calibration,
+                                               label_template(self.stage), params, rng, subject_model(self.stage),
+                                               self.stream.ms, marker_model)
+            detections = correct_rolling_shutter(detections, stamps, self.gt.readout_s, self.gt.image_size[1])
+        if unsynced:  # each camera's own timestamps: synchronise from the markers' motion
+            capture, sync = capture_unsynchronised(
+                detections, stamps, self.calibration, label_template(self.stage),
                 params, rng, subject_model(self.stage), self.stream.ms,
                 marker_model=reference.marker_model() if reference is not None else None)
+            if keep_sync:
+                self.sync = sync
             return capture
-        return capture_from_detections(self._detections(), self.calibration, label_template(self.stage), self.gt.times,
+        return capture_from_detections(detections, self.calibration, label_template(self.stage), self.gt.times,
                                        params, rng, subject_model(self.stage), self.stream.ms,
                                        marker_model=reference.marker_model() if reference is not None else None)
 

@@ -5,6 +5,14 @@ over the shutter interval from sub-frame renders (their count adapts to how far
 the body moves in the image during the exposure), applies distortion and optics
 blur, and runs the sensor model. It also returns the id map and marker visibility
 at mid-exposure, the instant the ground truth describes.
+
+Rolling shutter (``sensor.readout_ms`` > 0): row ``y`` of an ``H``-row frame whose timestamp
+is ``t`` is exposed over ``[t_y - e/2, t_y + e/2]`` with ``t_y = t + y / H * readout`` (row 0
+at the frame's timestamp; :func:`row_times`). The frame is rendered at sub-frame instants
+spread over ``[t - e/2, t + readout + e/2]``, as many as keep the image motion between two
+within ``blur_step_px`` (the blur step's accuracy), and each output row averages the
+sub-frames that fall in its own exposure window (:func:`rolling_weights`; without motion
+blur, the sub-frame nearest its instant). The id map and visibility stay at ``t``.
 """
 
 from __future__ import annotations
@@ -22,7 +30,7 @@ from simbench.render.geometry import MovingGeometry
 from simbench.render.gl_sensor import GLSensorPipeline
 from simbench.render.lighting import Lighting
 from simbench.render.rasterizer import GeometryBuffers, Light, Rasterizer
-from simbench.render.sensor import Sensor, WhiteBalance
+from simbench.render.sensor import AutoExposure, Sensor, WhiteBalance
 from simbench.scenario import SensorConfig
 
 
@@ -91,7 +99,9 @@ class FrameRenderer:
         work: dict = {}  # cameras are processed in turn: one set of sensor scratch arrays
         self.sensors = [Sensor(sensor_cfg, fps, work) for _ in cameras]
         self.wbs = [WhiteBalance(sensor_cfg, fps) for _ in cameras]
+        self.aes = [AutoExposure(sensor_cfg, fps) if sensor_cfg.auto_exposure else None for _ in cameras]
         self.exposure_s = sensor_cfg.exposure_ms * 1e-3
+        self.readout_s = sensor_cfg.readout_ms * 1e-3
         self._gl = None
         self._buffers: dict[tuple[int, int], dict[str, np.ndarray]] = {}
         self.set_sensor_backend(sensor_backend)
@@ -112,6 +122,8 @@ class FrameRenderer:
         """Switch between ``"numpy"``, ``"reference"`` and ``"gl"`` (see the constructor)."""
         if backend not in ("numpy", "reference", "gl"):
             raise ValueError(f"sensor_backend must be 'numpy', 'reference' or 'gl', got {backend!r}")
+        if backend == "gl" and (self.readout_s > 0 or self.cfg.auto_exposure or self.cfg.vignetting > 0):
+            raise ValueError("the gl sensor backend has no rolling shutter, auto exposure or vignetting: use 'numpy'")
         self.sensor_backend = backend
         if backend == "gl":
             self._gl = self._gl or GLSensorPipeline(self.raster)
@@ -132,8 +144,11 @@ class FrameRenderer:
 
     # ------------------------------------------------------------------ shutter
     def subframe_count(self, pose_open: Pose, pose_mid: Pose, pose_close: Pose) -> int:
-        """Sub-frames needed so that nothing moves more than ``blur_step_px`` between two."""
-        if not self.cfg.motion_blur:
+        """Sub-frames needed so that nothing moves more than ``blur_step_px`` between two
+        (between shutter open and close; with a rolling shutter, over :meth:`shutter_span`,
+        motion blur or not, up to ``max(max_subframes, 64)``)."""
+        rolling = self.readout_s > 0
+        if not self.cfg.motion_blur and not rolling:
             return 1
         worst = 0.0
         for cam in self.cameras:
@@ -143,9 +158,17 @@ class FrameRenderer:
             if np.any(inside & np.isfinite(d)):
                 worst = max(worst, float(np.nanmax(d[inside])))
         n = int(np.ceil(worst / self.cfg.blur_step_px))
-        return int(np.clip(n, 1, self.cfg.max_subframes))
+        return int(np.clip(n, 1, max(self.cfg.max_subframes, ROLLING_MAX_SUBFRAMES) if rolling else self.cfg.max_subframes))
+
+    def shutter_span(self, t_mid: float) -> tuple[float, float]:
+        """First and last instant any row of the frame stamped ``t_mid`` is exposed at."""
+        e = self.exposure_s if self.cfg.motion_blur else 0.0
+        return t_mid - e / 2, t_mid + self.readout_s + e / 2
 
     def subframe_times(self, t_mid: float, n: int) -> np.ndarray:
+        if self.readout_s > 0:  # spread over every row's exposure
+            a, b = self.shutter_span(t_mid)
+            return a + (b - a) * (np.arange(n) + 0.5) / n
         if n == 1:
             return np.array([t_mid])
         return t_mid + self.exposure_s * ((np.arange(n) + 0.5) / n - 0.5)
@@ -190,14 +213,25 @@ class FrameRenderer:
                 rad_out = ("radiance_red",)
             else:
                 rad_out = ("radiance",)
+            rows_w = rolling_weights(sub_times, t_mid, self.readout_s, self.exposure_s if self.cfg.motion_blur else 0.0,
+                                     H) if self.readout_s > 0 else None
             for i, ((P, N), ts) in enumerate(zip(posed, sub_times)):
+                if rows_w is not None and not rows_w[i].any():
+                    continue  # no row is exposed at this sub-frame
                 self.raster.update_dynamic(P, N)
                 lights, ambient, ring = self._lights(float(ts), cam)
                 # Without blur the one sub-frame *is* mid-exposure: take its ids from the same pass.
-                outs = rad_out + (("ids",) if n == 1 else ())
+                outs = rad_out + (("ids",) if n == 1 and rows_w is None else ())
                 out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
                                          outputs=outs, buffers=self._read_buffers(canvas.width, canvas.height))
-                if gl_post is not None:
+                if rows_w is not None:  # rolling shutter: each output row its own weights
+                    part = cam.finish_radiance(out["radiance"], ss)
+                    part = part * rows_w[i].astype(np.float32).reshape((-1,) + (1,) * (part.ndim - 1))
+                    if acc is None:
+                        acc = part
+                    else:
+                        acc += part
+                elif gl_post is not None:
                     acc = out["radiance_texture"] if n == 1 else gl_post.accumulate(
                         out["radiance_texture"], canvas.width, canvas.height, first=i == 0)
                 else:
@@ -208,6 +242,8 @@ class FrameRenderer:
                         acc += rad
                 idr = out.get("ids")
             if idr is None:  # ids and visibility at mid-exposure (the instant of the ground truth)
+                if mid_posed is None:
+                    mid_posed = self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
                 self.raster.update_dynamic(*mid_posed)
                 lights, ambient, ring = self._lights(t_mid, cam)
                 idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
@@ -219,17 +255,23 @@ class FrameRenderer:
                                             self.sensors[ci], self.wbs[ci], self.cfg.psf_sigma_px, rng)
                 continue
             if self.sensor_backend == "numpy":
+                if rows_w is not None:  # already the weighted mean in the output image
+                    self.sensors[ci].frame(acc, rng, self.wbs[ci], self.cfg.psf_sigma_px, 1, out=images[ci], ae=self.aes[ci])
+                    continue
                 img = cam.finish_radiance(acc, ss)  # the sum: the sensor divides by n
-                self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n, out=images[ci])
+                self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n, out=images[ci], ae=self.aes[ci])
                 continue
-            radiance = acc / np.float32(n) if n > 1 else acc
-            img = cam.finish_radiance(radiance, ss)
+            if rows_w is not None:
+                img = acc
+            else:
+                radiance = acc / np.float32(n) if n > 1 else acc
+                img = cam.finish_radiance(radiance, ss)
             if self.cfg.psf_sigma_px > 0:
                 img = cv2.GaussianBlur(img, (0, 0), self.cfg.psf_sigma_px)
             if img.ndim == 2:  # OpenCV drops a single channel axis
                 img = img[..., None]
             e = self.sensors[ci].electrons(img, rng)
-            images[ci] = self.sensors[ci].to_frame(e, self.wbs[ci])
+            images[ci] = self.sensors[ci].to_frame(e, self.wbs[ci], self.aes[ci])
         return FrameOutput(index, t_mid, images, id_maps, vis, n)
 
     def _visible_fraction(self, cam: VirtualCamera, canvas_ids: np.ndarray, marker_pos: np.ndarray, ss: int) -> np.ndarray:
@@ -260,9 +302,48 @@ def _marker_pixel_counts(ids, base, n_markers):
     return counts
 
 
+#: A rolling shutter's sub-frames may go up to this many (or ``max_subframes`` if more): its span
+#: (readout + exposure) is several exposures long.
+ROLLING_MAX_SUBFRAMES = 64
+
+
+def row_times(t_frame: float, rows: np.ndarray, height: int, readout_s: float) -> np.ndarray:
+    """The rolling shutter's row-time model: row ``y`` (pixels, 0 at the top) of an ``height``-row
+    frame stamped ``t_frame`` is exposed (mid-exposure) at ``t_frame + y / height * readout_s``."""
+    return t_frame + np.asarray(rows, float) / height * readout_s
+
+
+def rolling_weights(sub_times: np.ndarray, t_mid: float, readout_s: float, exposure_s: float, height: int) -> np.ndarray:
+    """Weights ``(n, H)`` of ``n`` evenly spaced sub-frames ``sub_times`` in each output row of a
+    rolling-shutter frame stamped ``t_mid``: each sub-frame stands for the interval around it, and
+    row ``y`` takes the overlap of those intervals with its exposure window (:func:`row_times`
+    +- ``exposure_s / 2``), normalised to sum to 1; with no exposure (no motion blur), the
+    sub-frame nearest its instant."""
+    sub_times = np.asarray(sub_times, float)
+    n = len(sub_times)
+    ty = row_times(t_mid, np.arange(height), height, readout_s)
+    step = (sub_times[-1] - sub_times[0]) / (n - 1) if n > 1 else max(readout_s + exposure_s, 1e-9)
+    w = np.zeros((n, height))
+    if exposure_s <= 0 or n == 1:
+        nearest = np.argmin(np.abs(sub_times[:, None] - ty[None, :]), axis=0)
+        w[nearest, np.arange(height)] = 1.0
+        return w
+    lo = np.maximum(sub_times[:, None] - step / 2, ty[None, :] - exposure_s / 2)
+    hi = np.minimum(sub_times[:, None] + step / 2, ty[None, :] + exposure_s / 2)
+    w = np.clip(hi - lo, 0.0, None)
+    return w / np.maximum(w.sum(axis=0, keepdims=True), 1e-300)
+
+
 def plan_subframes(renderer: FrameRenderer, times_mid: np.ndarray, pose_at: Callable[[np.ndarray], list[Pose]]) -> list[np.ndarray]:
-    """Sub-frame times of every frame (adaptive count), from poses at shutter open/mid/close."""
+    """Sub-frame times of every frame (adaptive count), from poses at shutter open/mid/close
+    (with a rolling shutter, at the start, middle and end of :meth:`FrameRenderer.shutter_span`)."""
     e = renderer.exposure_s
+    if renderer.readout_s > 0:
+        span = np.array([renderer.shutter_span(float(t)) for t in times_mid]).reshape(-1, 2)
+        probe_times = np.stack([span[:, 0], span.mean(axis=1), span[:, 1]], axis=1).ravel()
+        poses = poses_at_times(pose_at, probe_times)
+        return [renderer.subframe_times(float(t), renderer.subframe_count(*poses[3 * k: 3 * k + 3]))
+                for k, t in enumerate(times_mid)]
     if not renderer.cfg.motion_blur or e <= 0:
         return [np.array([t]) for t in times_mid]
     probe_times = np.stack([times_mid - e / 2, times_mid, times_mid + e / 2], axis=1).ravel()

@@ -10,6 +10,13 @@ read noise (Gaussian, e-) -> clip at full well -> gain -> white balance (per-cha
 gains; fixed for an illuminant, or auto grey-world with a time constant) ->
 gamma (sRGB OETF) -> 8-bit quantisation -> optional JPEG.
 In ``ir`` mode the sensor is monochrome (the three channels are equal).
+
+Vignetting (``vignetting``) darkens the radiance radially before the electrons
+(``1 - v * (r / r_corner)^2``). Auto exposure (``auto_exposure``, :class:`AutoExposure`)
+multiplies the gain: each frame is metered (its mean linear level after gain) and the
+gain of the next frame moves towards the level ``ae_target`` in the log domain with time
+constant ``ae_adapt_s``, so after a step in the light the brightness error decays as
+``exp(-t / ae_adapt_s)``, one frame late, as a webcam's does.
 """
 
 from __future__ import annotations
@@ -167,6 +174,43 @@ class WhiteBalance:
         return self.gains
 
 
+class AutoExposure:
+    """A camera's auto exposure: a gain multiplier ``gain`` (1 .. ``ae_max_gain``, ``1 / ae_max_gain``
+    at the least) that follows the metered level towards ``ae_target`` with time constant ``ae_adapt_s``.
+
+    The first frame starts at the gain its own (noise-free) level asks for; after that each
+    frame's metered level sets the next frame's gain (:meth:`update`):
+    ``log g <- log g + alpha * log(target / level)``, ``alpha = 1 - exp(-1 / (fps * ae_adapt_s))``.
+    """
+
+    def __init__(self, cfg: SensorConfig, fps: float) -> None:
+        self.target = float(cfg.ae_target)
+        self.alpha = float(1.0 - np.exp(-1.0 / (fps * cfg.ae_adapt_s)))
+        self.lo, self.hi = 1.0 / float(cfg.ae_max_gain), float(cfg.ae_max_gain)
+        self.gain = 1.0
+        self.started = False
+        self.history: list[tuple[float, float]] = []  # (gain applied, metered level) per frame
+
+    def start(self, level_at_unit_gain: float) -> None:
+        """Set the first frame's gain from its level at gain 1."""
+        self.gain = float(np.clip(self.target / max(level_at_unit_gain, 1e-6), self.lo, self.hi))
+        self.started = True
+
+    def update(self, level: float) -> None:
+        """Feed the metered level (0..1, linear, after this frame's gain); sets the next frame's gain."""
+        self.history.append((self.gain, float(level)))
+        step = self.alpha * np.log(self.target / max(float(level), 1e-6))
+        self.gain = float(np.clip(self.gain * np.exp(step), self.lo, self.hi))
+
+
+def vignetting_map(height: int, width: int, strength: float) -> np.ndarray:
+    """Relative illumination ``(H, W)`` float32: ``1 - strength * (r / r_corner)^2`` about the image centre."""
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    cy, cx = (height - 1) / 2.0, (width - 1) / 2.0
+    r2 = ((x - cx) ** 2 + (y - cy) ** 2) / (cx**2 + cy**2)
+    return (1.0 - np.float32(strength) * r2).astype(np.float32)
+
+
 class Sensor:
     """Turns time-averaged radiance into the camera's 8-bit frame."""
 
@@ -217,7 +261,8 @@ class Sensor:
         return table[off: off + n]
 
     def frame(self, radiance: np.ndarray, rng: np.random.Generator | None, wb: WhiteBalance | None,
-              psf_sigma_px: float = 0.0, n_subframes: int = 1, out: np.ndarray | None = None) -> np.ndarray:
+              psf_sigma_px: float = 0.0, n_subframes: int = 1, out: np.ndarray | None = None,
+              ae: AutoExposure | None = None) -> np.ndarray:
         """Radiance at the image -> the camera's 8-bit frame, optics blur included (fast path).
 
         The same model as ``cv2.GaussianBlur`` then :meth:`electrons` then
@@ -243,6 +288,7 @@ class Sensor:
         n_subframes : number of shutter sub-frames summed in ``radiance``
         out : (H, W, 3) uint8 C-contiguous array to write the frame into (saves a copy of
             a new array), or None
+        ae : the camera's auto exposure (its gain multiplies ``gain``; metered here), or None
 
         Returns
         -------
@@ -265,6 +311,8 @@ class Sensor:
             cv2.sepFilter2D(rad, cv2.CV_32F, k * scale, k, dst=e, borderType=cv2.BORDER_REFLECT_101)
         else:
             np.multiply(rad, scale, out=e)
+        if cfg.vignetting > 0:
+            e *= self._vignetting(H, W).reshape((H, W) + (1,) * (e.ndim - 2))
         flat = e.reshape(-1)
         noisy = rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0)
         z = self._noise_window(rng, flat.size) if noisy else flat  # (unread without noise)
@@ -272,7 +320,9 @@ class Sensor:
         read_var = np.float32(cfg.read_noise_e**2)
         full_well = np.float32(cfg.full_well_e)
         top = 2**_LUT_BITS - 1
-        k_idx = np.float32(cfg.gain / cfg.full_well_e * top)
+        if ae is not None and not ae.started:
+            ae.start(float(np.mean(np.minimum(flat[::7], cfg.full_well_e))) * cfg.gain / cfg.full_well_e)
+        k_idx = np.float32(cfg.gain * (ae.gain if ae is not None else 1.0) / cfg.full_well_e * top)
         if not mono and wb is not None:
             if wb.mode == "fixed":
                 k_idx = (wb.gains * k_idx).astype(np.float32)
@@ -284,6 +334,8 @@ class Sensor:
         kk = np.resize(np.asarray(k_idx, np.float32).reshape(-1), _BLOCK)
         idx = self._buffer("idx", (flat.size,), np.uint16)
         _noisy_index(flat, z, noisy, shot, read_var, full_well, kk, np.float32(top), idx)
+        if ae is not None:
+            ae.update(float(idx[::7].mean()) / top)
         if out is None:
             frame = np.empty((H, W, 3), np.uint8)
         elif out.shape != (H, W, 3) or out.dtype != np.uint8 or not out.flags.c_contiguous:
@@ -300,6 +352,13 @@ class Sensor:
             frame[...] = self.compress(frame)
         return frame
 
+    def _vignetting(self, height: int, width: int) -> np.ndarray:
+        key = ("vignetting", height, width)
+        v = self._buffers.get(key)
+        if v is None:
+            v = self._buffers[key] = vignetting_map(height, width, self.cfg.vignetting)
+        return v
+
     # ------------------------------------------------------------ reference
     def electrons(self, radiance: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
         """Mean radiance ``(H, W, 3)`` -> noisy electron counts ``(H, W, C)`` float32.
@@ -312,6 +371,8 @@ class Sensor:
         if cfg.mode == "ir" and radiance.shape[2] != 1:
             radiance = radiance[..., :1]  # the IR sensor: one channel (the renderer's red ~ near infrared)
         e = np.multiply(radiance, self.scale, dtype=np.float32)
+        if cfg.vignetting > 0:
+            e *= vignetting_map(e.shape[0], e.shape[1], cfg.vignetting)[..., None]
         if rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0):
             std = (e + np.float32(cfg.read_noise_e**2)) if cfg.shot_noise else np.full_like(e, cfg.read_noise_e**2)
             np.maximum(std, 0, out=std)
@@ -322,17 +383,21 @@ class Sensor:
         np.clip(e, 0, cfg.full_well_e, out=e)
         return e
 
-    def to_frame(self, electrons: np.ndarray, wb: WhiteBalance | None) -> np.ndarray:
+    def to_frame(self, electrons: np.ndarray, wb: WhiteBalance | None, ae: AutoExposure | None = None) -> np.ndarray:
         """Electrons ``(H, W, C)`` -> uint8 ``(H, W, 3)`` (RGB order)."""
         cfg = self.cfg
         top = 2**_LUT_BITS - 1
-        k = np.float32(cfg.gain / cfg.full_well_e * top)
+        if ae is not None and not ae.started:
+            ae.start(float(np.mean(electrons.reshape(-1)[::7])) * cfg.gain / cfg.full_well_e)
+        k = np.float32(cfg.gain * (ae.gain if ae is not None else 1.0) / cfg.full_well_e * top)
         if electrons.shape[2] == 3 and wb is not None:
             # Auto white balance looks at the linear image before its gains.
             k = (wb.update(electrons) * k).astype(np.float32)
         x = electrons * k
         x += np.float32(0.5)
         np.clip(x, 0, top, out=x)
+        if ae is not None:
+            ae.update(float(np.floor(x).reshape(-1)[::7].mean()) / top)
         frame = np.take(self.lut, x.astype(np.uint16))
         if frame.shape[2] == 1:
             frame = np.repeat(frame, 3, axis=2)

@@ -31,6 +31,12 @@ camera_times           (F, C)               only with unsynchronised ``[sensor.c
 camera_timestamps      (F, C)               ... and each camera's own timestamps (s)
 clock_offset_s         (C,)                 ... true time at each clock's zero (s)
 clock_rate             (C,)                 ... true seconds per clock second
+readout_s              ()                   only with a rolling shutter (``sensor.readout_ms``
+                                            > 0): row ``y`` of a frame (``H`` rows) is
+                                            exposed at its time + ``y / H * readout_s``
+markers_2d_rolling     (F, C, M, 2)         ... where that row-time model puts each marker:
+                                            ``uv = project(X(t + v / H * readout_s))``
+                                            (``markers_2d`` stays at the frame's time)
 =====================  ==================  ==========================================
 
 ``ids.npz`` (compressed): ``cam_<name>`` (F, H, W) int16 id maps at mid-exposure
@@ -90,6 +96,9 @@ class GroundTruth:
     camera_timestamps: np.ndarray | None = None  # (F, C) each camera's own timestamp of its frame (s)
     clock_offset_s: np.ndarray | None = None     # (C,) true time at each camera clock's zero (s)
     clock_rate: np.ndarray | None = None         # (C,) true seconds per clock second
+    # Only with a rolling shutter (sensor.readout_ms > 0): the row-time model and where it puts the markers.
+    readout_s: float = 0.0
+    markers_2d_rolling: np.ndarray | None = None  # (F, C, M, 2) px
 
     @property
     def n_frames(self) -> int:
@@ -112,6 +121,9 @@ class GroundTruth:
         d.mkdir(parents=True, exist_ok=True)
         arrays = {k: getattr(self, k) for k in self._ARRAYS}
         arrays.update({k: getattr(self, k) for k in self._CLOCK_ARRAYS if getattr(self, k) is not None})
+        if self.readout_s > 0:
+            arrays["readout_s"] = np.float64(self.readout_s)
+            arrays["markers_2d_rolling"] = self.markers_2d_rolling
         arrays["image_size"] = np.asarray(self.image_size)
         np.savez(d / "ground_truth.npz", **arrays)
         if self.id_maps:
@@ -151,6 +163,8 @@ def load_ground_truth(directory: str | Path, load_id_maps: bool = False) -> Grou
         with np.load(d / "ids.npz") as z:
             id_maps = {k[4:]: z[k] for k in z.files}
     size = arrays.pop("image_size")
+    if "readout_s" in arrays:
+        arrays["readout_s"] = float(arrays["readout_s"])
     return GroundTruth(
         camera_names=meta["camera_names"], marker_names=meta["marker_names"], joint_names=meta["joint_names"],
         hinge_names=meta["hinge_names"], prop_names=meta["prop_names"], light_names=meta["light_names"],
