@@ -145,74 +145,86 @@ def correct_rolling_shutter(detections: list[list[Detections]], frame_times: lis
 
 def refine_with_trajectories(raw: list[list[Detections]], first: list[list[Detections]], frame_times: np.ndarray,
                              readout_s: float, calibration: Calibration, trajectories: Trajectories,
-                             gate_px: float = 3.0, window: int = 3) -> list[list[Detections]]:
+                             gate_px: float = 6.0, reach: int = 3) -> list[list[Detections]]:
     """The raw blobs moved to the timestamps by the reconstructed markers' motion.
 
     For each camera and frame, every marker of ``trajectories`` (at the frames' timestamps
     ``frame_times``, the same for every camera) is placed where the row-time model shows it:
-    ``uv = project(X(t + v / H * readout))``, ``X`` continued from the frame by the trajectory's
-    velocity and acceleration (a parabola through the ``window`` frames around, least squares);
-    a raw blob within ``gate_px`` of such a
-    point is moved by that marker's ``project(X(t)) - uv``. Other blobs keep their position in
-    ``first`` (the link-interpolated correction)."""
+    ``uv = project(X(t + v / H * readout))``, ``X`` continued from the frame along the parabola
+    through the marker's three nearest measured frames within ``reach`` frames
+    (:func:`_local_parabolas`). A raw blob within ``gate_px`` of such a point is moved by that
+    marker's ``project(X(t)) - uv``: first to the markers measured in that frame, then the
+    blobs left to markers missing there but measured around it. Other blobs keep their
+    position in ``first`` (the link-interpolated correction)."""
     t = np.asarray(frame_times, float)
     X = np.asarray(trajectories.xyz, float)                          # (F, M, 3)
     F, M = X.shape[:2]
     if F < 3:
         return [list(cam) for cam in first]
-    V, A = _velocity_acceleration(X, t, window)
-    A = np.nan_to_num(A, nan=0.0)
+    P, V, A = _local_parabolas(X, t, reach)
+    measured = np.isfinite(X).all(axis=2)
     out = []
     for c, cam in enumerate(calibration):
         H = cam.size[1]
-        uv_t = cam.project(X.reshape(-1, 3)).reshape(F, M, 2)
+        uv_t = cam.project(P.reshape(-1, 3)).reshape(F, M, 2)
         uv = uv_t.copy()
         for _ in range(3):
             d = (np.nan_to_num(uv[..., 1], nan=0.0) / H * readout_s)[..., None]
-            uv = cam.project((X + d * V + 0.5 * d**2 * A).reshape(-1, 3)).reshape(F, M, 2)
+            uv = cam.project((P + d * V + 0.5 * d**2 * A).reshape(-1, 3)).reshape(F, M, 2)
         shift = uv_t - uv                                            # (F, M, 2)
-        ok = np.isfinite(shift).all(axis=2)
+        ok = np.isfinite(shift).all(axis=2) & np.isfinite(uv).all(axis=2)
         frames = []
         for k in range(len(raw[c])):
             d_raw, d_first = raw[c][k], first[c][k]
             if not len(d_raw) or k >= F or not ok[k].any():
                 frames.append(d_first)
                 continue
-            m_ok = np.flatnonzero(ok[k])
-            dist = np.linalg.norm(d_raw.xy[:, None] - uv[k, m_ok][None], axis=2)   # (n, M')
-            near = dist.argmin(axis=1)
-            hit = dist[np.arange(len(d_raw)), near] <= gate_px
             xy = d_first.xy.copy()
-            xy[hit] = d_raw.xy[hit] + shift[k, m_ok[near[hit]]]
+            free = np.ones(len(d_raw), bool)
+            for which in (ok[k] & measured[k], ok[k] & ~measured[k]):
+                m_ok = np.flatnonzero(which)
+                if not len(m_ok) or not free.any():
+                    continue
+                dist = np.linalg.norm(d_raw.xy[:, None] - uv[k, m_ok][None], axis=2)   # (n, M')
+                near = dist.argmin(axis=1)
+                hit = free & (dist[np.arange(len(d_raw)), near] <= gate_px)
+                xy[hit] = d_raw.xy[hit] + shift[k, m_ok[near[hit]]]
+                free &= ~hit
             frames.append(Detections(xy, d_raw.area, d_raw.intensity))
         out.append(frames)
     return out
 
 
-def _velocity_acceleration(X: np.ndarray, t: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity and acceleration ``(F, M, 3)`` of trajectories ``X (F, M, 3)`` at times ``t (F,)``:
-    a parabola fitted (least squares) to the ``window`` frames around each (fewer at the ends);
-    NaN where fewer than 3 of them were measured."""
-    F = len(t)
-    h = window // 2
+def _local_parabolas(X: np.ndarray, t: np.ndarray, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity and acceleration ``(F, M, 3)`` of trajectories ``X (F, M, 3)`` (NaN in
+    gaps) at the times ``t (F,)``: of the parabola through each marker's three measured frames
+    nearest to the frame within ``reach`` frames (the frame itself when measured); NaN where
+    there are not three."""
+    F, M = X.shape[:2]
+    P = np.full_like(X, np.nan)
     V = np.full_like(X, np.nan)
     A = np.full_like(X, np.nan)
+    measured = np.isfinite(X).all(axis=2)                            # (F, M)
+    offsets = np.array(sorted(range(-reach, reach + 1), key=lambda o: (abs(o), o)))
     for k in range(F):
-        lo, hi = max(0, k - h), min(F, k + h + 1)
-        if hi - lo < 3:
-            lo, hi = max(0, min(lo, F - 3)), min(F, max(hi, 3))
-        dt = t[lo:hi] - t[k]
-        Y = X[lo:hi]                                                 # (w, M, 3)
-        ok = np.isfinite(Y).all(axis=2)                             # (w, M)
-        full = ok.all(axis=0)
-        G = np.stack([np.ones_like(dt), dt, 0.5 * dt**2], axis=1)   # (w, 3)
-        if full.any():
-            coef = np.linalg.lstsq(G, Y[:, full].reshape(len(dt), -1), rcond=None)[0].reshape(3, -1, 3)
-            V[k, full], A[k, full] = coef[1], coef[2]
-        for m in np.flatnonzero(~full & (ok.sum(axis=0) >= 3)):
-            coef = np.linalg.lstsq(G[ok[:, m]], Y[ok[:, m], m], rcond=None)[0]
-            V[k, m], A[k, m] = coef[1], coef[2]
-    return V, A
+        js = k + offsets
+        js = js[(js >= 0) & (js < F)]
+        avail = measured[js]                                          # (J, M)
+        rank = np.cumsum(avail, axis=0)
+        pick = avail & (rank <= 3)                                    # the three nearest measured
+        enough = pick.sum(axis=0) == 3
+        for m in np.flatnonzero(enough):
+            j = js[pick[:, m]]
+            ts = t[j] - t[k]
+            ys = X[j, m]                                             # (3, 3)
+            # Newton's divided differences of the parabola through (ts, ys), at 0
+            d01 = (ys[1] - ys[0]) / (ts[1] - ts[0])
+            d12 = (ys[2] - ys[1]) / (ts[2] - ts[1])
+            d012 = (d12 - d01) / (ts[2] - ts[0])
+            P[k, m] = ys[0] + d01 * (0 - ts[0]) + d012 * (0 - ts[0]) * (0 - ts[1])
+            V[k, m] = d01 + d012 * ((0 - ts[0]) + (0 - ts[1]))
+            A[k, m] = 2 * d012
+    return P, V, A
 
 
 def capture_rolling_shutter(detections: list[list[Detections]], times: np.ndarray, readout_s: float,

@@ -58,6 +58,7 @@ SCENARIOS = REPO / "scenarios"
 POSITIVE = (
     "duration_s", "fps", "body.height_m", "motion.speed", "sensor.exposure_ms", "sensor.gain", "sensor.full_well_e",
     "sensor.wb_adapt_s", "sensor.blur_step_px", "sensor.max_subframes", "sensor.antialias", "sensor.electrons_per_unit",
+    "sensor.ae_target", "sensor.ae_adapt_s", "sensor.ae_max_gain",
     "rig.count", "rig.radius_m", "rig.hfov_deg", "rig.width", "rig.height", "rig.span_deg", "cameras.*.width",
     "cameras.*.height", "cameras.*.hfov_deg", "lighting.scale", "set.room_size_m", "props.*.radius_m", "props.*.size_m.*",
     "shirt_pipeline.database_size", "shirt_pipeline.training_frames", "calibration_scene.board_cols",
