@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["detection_rate", "recovery_time_s"]
+__all__ = ["detection_rate", "detection_precision", "recovery_time_s"]
 
 
 def detection_rate(blobs: list[list[np.ndarray]], true_xy: np.ndarray, visible: np.ndarray, radius_px: float = 2.0) -> np.ndarray:
@@ -31,6 +31,26 @@ def detection_rate(blobs: list[list[np.ndarray]], true_xy: np.ndarray, visible: 
             found[k] += np.count_nonzero(d <= radius_px)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(total > 0, found / total, np.nan)
+
+
+def detection_precision(blobs: list[list[np.ndarray]], true_xy: np.ndarray, visible: np.ndarray,
+                        radius_px: float = 2.0) -> np.ndarray:
+    """Per frame ``(F,)``: the fraction of blobs (over all cameras) within ``radius_px`` of a visible
+    marker's true image position (NaN for a frame without blobs): what is not is noise or clutter."""
+    F, C = visible.shape[:2]
+    good = np.zeros(F)
+    total = np.zeros(F)
+    for c in range(C):
+        for k in range(F):
+            xy = np.asarray(blobs[c][k], float).reshape(-1, 2)
+            total[k] += len(xy)
+            vis = np.flatnonzero(visible[k, c])
+            if not len(vis) or not len(xy):
+                continue
+            d = np.linalg.norm(xy[:, None] - true_xy[k, c, vis][None], axis=2).min(axis=1)
+            good[k] += np.count_nonzero(d <= radius_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(total > 0, good / total, np.nan)
 
 
 def recovery_time_s(times: np.ndarray, rate: np.ndarray, event_s: float, before_s: float = 0.5, fraction: float = 0.9,

@@ -42,6 +42,7 @@ SLOW_MODULES = frozenset({
     "test_run_markers.py",
     "test_run_real_motion.py",
     "test_run_seeds.py",
+    "test_run_webcams.py",
     "test_shirt_pipeline_run.py",
     "test_study_trackers.py",
     "test_sweep_kill_resume.py",

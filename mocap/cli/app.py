@@ -39,13 +39,16 @@ def markers(
     seed: int = typer.Option(0, "--seed", help="seed of stochastic trackers"),
     timestamps: bool = typer.Option(False, "--timestamps", help="cameras not synchronised: read each video's "
                                     "<name>.timestamps.csv (its own clock) and synchronise them from the markers' motion"),
+    readout_ms: float = typer.Option(0.0, "--readout-ms", help="rolling shutter: the cameras read their rows out over "
+                                     "this long (ms; row y of H at the frame's time + y / H * readout); each blob is "
+                                     "moved to its frame's timestamp before triangulation. 0: global shutter"),
 ) -> None:
     """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject).
 
     With --timestamps the cameras may run on their own clocks: each camera's offset and drift
     relative to the first are estimated from the markers' motion (mocap.synchronisation), the
     blobs are interpolated to the first camera's frame instants, and summary.json gives the
-    estimated clocks."""
+    estimated clocks. With --readout-ms the rows' times are corrected (mocap.rolling_shutter)."""
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, export_capture
@@ -61,6 +64,9 @@ def markers(
     check_videos_against_calibration(paths, probes, cal)
     fps = _capture_fps(paths, probes, fps)
     stamps = _read_camera_timestamps(paths, probes) if timestamps else None
+    if not (np.isfinite(readout_ms) and 0.0 <= readout_ms <= 1000.0 / fps):
+        raise InputFileError(Path("--readout-ms"), f"value {readout_ms!r}",
+                             f"give the rows' readout time in ms, 0 (global shutter) to the frame interval {1000.0 / fps:.2f}")
     out_dir = Path(out)
     subj = None
     if subject is not None:
@@ -75,7 +81,7 @@ def markers(
         if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
             raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
                                  f"check --mode ({mode}: 'ir' finds bright markers on a dark scene, 'visible' white markers on a lit subject) and the exposure")
-        capture, sync_summary = _capture(stream, cal, tmpl, params, seed, subj, stamps, fps)
+        capture, sync_summary = _capture(stream, cal, tmpl, params, seed, subj, stamps, fps, readout_ms * 1e-3)
         files = export_capture(capture, tmp, cal, subj)
         summary = _markers_summary(capture, files, out_dir, sync_summary)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -121,21 +127,32 @@ def _read_camera_timestamps(paths: list[Path], probes: list) -> list[np.ndarray]
     return stamps
 
 
-def _capture(stream, cal: Calibration, tmpl, params, seed: int, subj, stamps: list[np.ndarray] | None, fps: float):
+def _capture(stream, cal: Calibration, tmpl, params, seed: int, subj, stamps: list[np.ndarray] | None, fps: float,
+             readout_s: float = 0.0):
     """The marker pipeline on the detected blobs of ``stream``.
 
     Synchronised cameras: frame ``i`` at ``i / fps`` seconds. With ``stamps`` (per camera
-    ``(frames,)`` seconds, own clocks): the clocks are estimated first. Returns the capture
-    and, with ``stamps``, the summary of the estimated clocks (offsets ms, drifts ppm), else None.
+    ``(frames,)`` seconds, own clocks): the clocks are estimated first. With ``readout_s`` > 0
+    (rolling shutters) the blobs are moved to their frames' timestamps first
+    (:mod:`mocap.rolling_shutter`). Returns the capture and, with ``stamps``, the summary of
+    the estimated clocks (offsets ms, drifts ppm), else None.
     """
     from mocap.marker_pipeline import capture_from_detections, capture_unsynchronised
+    from mocap.rolling_shutter import capture_rolling_shutter, correct_rolling_shutter
 
     if stamps is None:
         times = np.arange(len(stream.detections[0])) / fps
+        if readout_s > 0:
+            return capture_rolling_shutter(stream.detections, times, readout_s, cal, tmpl, params, np.random.default_rng(seed),
+                                           subj, stream.ms), None
         return capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
                                        stream.ms), None
     n = len(stream.detections[0])
-    capture, sync = capture_unsynchronised(stream.detections, [t[:n] for t in stamps], cal, tmpl, params,
+    stamps = [t[:n] for t in stamps]
+    detections = stream.detections
+    if readout_s > 0:
+        detections = correct_rolling_shutter(detections, stamps, readout_s, [c.size[1] for c in cal])
+    capture, sync = capture_unsynchronised(detections, stamps, cal, tmpl, params,
                                            np.random.default_rng(seed), subj, stream.ms)
     sync_summary = {"reference": cal.names[sync.reference], "model": "s_reference = offset + (1 + drift) * s_camera",
                     "offset_ms": {c: round(float(o) * 1e3, 4) for c, o in zip(cal.names, sync.offset_s)},
