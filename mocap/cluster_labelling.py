@@ -84,8 +84,11 @@ class ClusterMarkerModel:
             out[m] = self.ref_self[m] @ R.T + t
         return out
 
-    def _grow(self, idx: np.ndarray, points: np.ndarray, allowed: np.ndarray, rounds: int = 4) -> np.ndarray:
-        """Label more points from the labelled ones' predictions, until nothing changes."""
+    def _grow(self, idx: np.ndarray, points: np.ndarray, allowed: np.ndarray, rounds: int = 4,
+              gate_m: np.ndarray | None = None) -> np.ndarray:
+        """Label more of the ``allowed`` points from the labelled ones' predictions (each label
+        within ``gate_m``, default its own gate), until nothing changes."""
+        gate_m = self.gate_m if gate_m is None else gate_m
         idx = idx.copy()
         for _ in range(rounds):
             pos = point_positions(points, idx)
@@ -95,7 +98,7 @@ class ClusterMarkerModel:
                 break
             taken = allowed.copy()
             taken[idx[idx >= 0]] = False
-            more = assign_to_predictions(np.where(free[:, None], pred, np.nan), points, self.gate_m, allowed=taken)
+            more = assign_to_predictions(np.where(free[:, None], pred, np.nan), points, gate_m, allowed=taken)
             if not (more >= 0).any():
                 break
             idx = np.where(more >= 0, more, idx)
@@ -139,12 +142,22 @@ class ClusterMarkerModel:
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
         pred = constant_velocity(state, previous)
         idx = assign_to_predictions(pred, points, gates[0], allowed=trusted)
+        # Ambiguous two-view points: only within the tight gate of the motion prediction.
+        free_points = ~trusted
+        free_points[idx[idx >= 0]] = False
+        more = assign_to_predictions(np.where((idx < 0)[:, None], pred, np.nan), points, gates[1], allowed=free_points)
+        idx = np.where(more >= 0, more, idx)
         # Veto: a label whose point disagrees with its neighbours' prediction loses it.
         pos = point_positions(points, idx)
         model = self.predict(pos)
         bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > self.gate_m)
         idx[bad] = -1
-        idx = self._grow(idx, points, np.ones(len(points), bool))
+        # Growth takes trusted points within the marker's gate, and ambiguous two-view points
+        # only within the tight gate (the MarkerModel rule): a knee marker's two-view point 32 mm
+        # from the shank marker lost to a merged point was inside the shank marker's 49 mm gate,
+        # and the labels of the two crossed for the rest of c3d_codamotion_walk.
+        idx = self._grow(idx, points, trusted)
+        idx = self._grow(idx, points, np.ones(len(points), bool), gate_m=np.minimum(self.gate_m, gates[1]))
         pos = point_positions(points, idx)
         model = self.predict(pos)
         seen = idx >= 0

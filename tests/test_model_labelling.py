@@ -18,12 +18,12 @@ from scipy.spatial import cKDTree
 
 from eval.marker_metrics import gap_recovery, label_swaps
 from mocap.calibration import Calibration, Camera
-from mocap.correspondence import reconstruct_unlabelled
+from mocap.correspondence import UnlabelledPoints, reconstruct_unlabelled
 from mocap.exports import read_c3d
 from mocap.labelling import LabelTemplate
 from mocap.marker_pipeline import MarkerPipelineParams, capture_from_detections
 from mocap.cluster_labelling import ClusterMarkerModel
-from mocap.model_labelling import assign_to_predictions
+from mocap.model_labelling import assign_to_predictions, label_points
 from mocap.reconstruction import ReconstructionParams
 from mocap.types import Detections
 
@@ -196,3 +196,40 @@ def test_real_captures_with_gaps(name: str, first: int, count: int) -> None:
     assert r["swaps"] == 0
     assert r["recovered"] == r["gaps"]
     assert r["rmse_mm"] <= 1.0
+
+
+def test_start_is_a_fit_that_explains_every_point() -> None:
+    """c3d_codamotion_walk's unlabelled points (8 cameras, stored in tests/data) labelled by the
+    rigid-cluster model learned from the capture. The right thigh and shank clusters look alike:
+    on 10 of the 16 frames where the global search leaves one point unexplained, it has them
+    swapped, and starting from such a frame (the best of five spread frames, 22 of 23 points)
+    carried the swap through the take: 244 wrong labels. The search goes on until a fit explains
+    every point (right on every such frame of this take). Tracking then must not let a label grow
+    onto an ambiguous two-view point outside the tight gate (a knee marker's point 32 mm from a
+    shank marker lost behind a merged blob, frame 50)."""
+    z = np.load(Path(__file__).parent / "data" / "codamotion_points.npz")
+    labels = [str(s) for s in z["labels"]]
+    ends = np.cumsum(z["counts"])
+    frames = []
+    for a, b in zip(ends - z["counts"], ends):
+        n = int(b - a)
+        frames.append(UnlabelledPoints(z["xyz"][a:b].astype(float), np.full((n, 8), -1), z["n_views"][a:b].astype(int),
+                                       np.zeros(n), z["ambiguous"][a:b]))
+    model = ClusterMarkerModel(labels, z["reference_xyz"].astype(float))
+    result = label_points(frames, model)
+    truth = z["truth_xyz"].astype(float)
+    wrong = labelled = right = there = 0
+    for f, fr in enumerate(frames):
+        seen = np.isfinite(truth[f]).all(axis=1)
+        near, nearest = cKDTree(fr.xyz).query(np.where(seen[:, None], truth[f], 1e3))
+        there += int((near < 0.005).sum())  # markers the cameras reconstructed
+        for m, i in enumerate(result.point_index[f]):
+            if i >= 0 and seen[m]:
+                labelled += 1
+                wrong += int(np.linalg.norm(fr.xyz[i] - truth[f, m]) > 0.01)
+                right += int(near[m] < 0.005 and i == nearest[m])
+    # 3275 of 3381 here; most of the rest is the sacral wand's left marker, whose point the right
+    # one (absent from the file in most frames) takes. The swapped start gave 2516, the start
+    # alone fixed 2867 (the growth then crossed a knee and a shank label).
+    assert right >= 0.96 * there, f"{right} of {there} reconstructed markers labelled"
+    assert wrong <= 0.01 * labelled, f"{wrong} of {labelled} labels on a point more than 10 mm from the marker"
