@@ -94,7 +94,8 @@ def shift_world(result: CalibrationResult, R: np.ndarray, t: np.ndarray) -> Cali
 
 @contextmanager
 def single_threaded_blas() -> Iterator[None]:
-    """Run the block with OpenBLAS on one thread (restored afterwards); a no-op where it cannot be set.
+    """Run the block with OpenBLAS and OpenCV on one thread each (restored afterwards); OpenBLAS
+    is left alone where its thread count cannot be set.
 
     The bundle adjustment's LSMR solver takes thousands of norms of residual vectors;
     past 10000 residuals OpenBLAS splits each ``ddot`` over threads, and on a busy
@@ -124,9 +125,14 @@ def single_threaded_blas() -> Iterator[None]:
             break
     for put, _ in setters:
         put(1)
+    # OpenCV's own threads too: its parallel solvers sum in a thread-dependent order, and the
+    # calibration's figures differed by ~1e-6 relative from one run to the next.
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
     try:
         yield
     finally:
+        cv2.setNumThreads(cv_threads)
         for put, n in setters:
             put(n)
 
