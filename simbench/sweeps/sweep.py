@@ -1,33 +1,6 @@
 """Scenario sweeps: a grid or a seeded random sample over any scenario fields.
 
-A sweep file (``scenarios/sweeps/*.toml``) names a base scenario, overrides applied
-to every run (``[set]``), and factors, each over one dotted scenario field or a named
-set of levels that change several fields at once::
-
-    name = "lighting_blur_tracker"
-    scenario = "../visible_office.toml"      # relative to the sweep file
-    mode = "grid"                            # or "random" with `samples` and `seed`
-
-    [set]
-    "rig.count" = 2
-    duration_s = 0.5
-
-    [[factors]]
-    field = "lighting.preset"
-    values = ["office_fluorescent", "tungsten_lamp", "dim_gym"]
-
-    [[factors]]
-    name = "blur"
-    [factors.levels]
-    off = { "sensor.motion_blur" = false, "sensor.exposure_ms" = 4.0 }
-    long = { "sensor.exposure_ms" = 25.0 }
-
-    [[factors]]                              # random mode only
-    field = "sensor.read_noise_e"
-    range = [1.0, 20.0]
-    log = true
-
-The sweep file's schema, its loading and its expansion into runs are in
+The sweep file (its format, with an example), its loading and its expansion into runs are in
 :mod:`simbench.sweeps.sweep_file` (importable from here too). Every run is validated
 before anything renders: a bad field names the sweep file, the factor, the value and
 what the scenario schema allows. Each run has a stable id: a hash
