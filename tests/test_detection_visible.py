@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from mocap.detection import DetectionParams, _noise_std, detect_markers
+from mocap.detection import DetectionParams, detect_markers
+from mocap.detection.blobs import noise_std
 from simbench.stage.build import build_stage
 from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
@@ -181,7 +182,7 @@ def test_noise_estimate_on_8bit_frames(sigma: float) -> None:
     absolute difference is 0 there), within 15 %."""
     rng = np.random.default_rng(26)
     img = np.clip(np.round(80.0 + rng.normal(0.0, sigma, (480, 640))), 0, 255).astype(np.uint8)
-    assert abs(_noise_std(img) - sigma) < 0.15 * sigma
+    assert abs(noise_std(img) - sigma) < 0.15 * sigma
 
 
 def _detection_scores(overrides: dict[str, object], path: str) -> tuple[float, float, float, float]:
