@@ -42,7 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simbench.render.rasterizer import Rasterizer, _compile
+from simbench.render.rasterizer import Rasterizer
+from simbench.render.shaders import compile_shader
 from simbench.render.sensor import _LUT_BITS, Sensor, WhiteBalance, gaussian_half_kernel
 
 from OpenGL import GL as gl  # noqa: E402  (after the platform is configured)
@@ -278,7 +279,7 @@ class GLSensorPipeline:
     def _program(frag: str) -> _Pass:
         prog = gl.glCreateProgram()
         for src, kind in ((_VERT, gl.GL_VERTEX_SHADER), (frag, gl.GL_FRAGMENT_SHADER)):
-            gl.glAttachShader(prog, _compile(src, kind))
+            gl.glAttachShader(prog, compile_shader(src, kind))
         gl.glLinkProgram(prog)
         if not gl.glGetProgramiv(prog, gl.GL_LINK_STATUS):
             raise RuntimeError(gl.glGetProgramInfoLog(prog).decode())

@@ -11,7 +11,8 @@ uniform by name lookup per primitive per frame; measured here that caps it at ab
 buffers (static set, and the moving body re-posed on the CPU with numpy, a few
 thousand vertices), draws them in two calls into three colour attachments (multiple
 render targets), draws and reads back only what was asked for, and culls the back
-faces of closed meshes (see :func:`closed_outward_faces`).
+faces of closed meshes (see :func:`simbench.render.gl_mesh.closed_outward_faces`). The GLSL
+programs are in :mod:`simbench.render.shaders`.
 
 Conventions
 -----------
@@ -30,111 +31,20 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from simbench.render.gl_context import GLContext
+from simbench.render.gl_mesh import GeometryBuffers, Mesh, closed_outward_faces
+from simbench.render.shaders import FRAGMENT_SHADER, MAX_LIGHTS, VERTEX_SHADER, compile_shader
 
 from OpenGL import GL as gl  # noqa: E402  (after the platform is configured)
 from OpenGL.raw.GL.VERSION.GL_1_0 import glReadPixels as _raw_read_pixels  # noqa: E402  (a plain pointer)
 
-MAX_LIGHTS = 8
+__all__ = ["GeometryBuffers", "Light", "MAX_LIGHTS", "Rasterizer", "closed_outward_faces", "projection_from_K"]
+
 _SCRATCH_UNIT = 7  # texture unit for creating textures without disturbing unit 0 (the board texture)
 _ALL_COLOR = (gl.GL_COLOR_ATTACHMENT0, gl.GL_COLOR_ATTACHMENT1, gl.GL_COLOR_ATTACHMENT2)
 _ZEROS_F = np.zeros(4, np.float32)
 _ZEROS_I = np.zeros(4, np.int32)
-
-# Lighting is evaluated per vertex (Gouraud): on llvmpipe the fragment stage dominates,
-# and per-fragment lighting of a 640x480 view costs ~4x the whole rest of the frame.
-# Meshes are tessellated finely enough (floor and walls are grids) that the
-# interpolation error is far below the sensor noise.
-_VERT = """
-#version 330 core
-layout(location = 0) in vec3 a_pos;
-layout(location = 1) in vec3 a_nrm;
-layout(location = 2) in vec3 a_alb;
-layout(location = 3) in int a_id;
-layout(location = 4) in float a_retro;
-layout(location = 5) in vec2 a_uv;      // texture coordinates; negative = untextured
-uniform mat4 u_world_to_cam;   // OpenCV camera frame
-uniform mat4 u_proj;           // OpenCV camera frame -> clip
-uniform int u_n_lights;
-uniform int u_light_kind[%(n)d];      // 0 directional, 1 point
-uniform vec3 u_light_vec[%(n)d];      // direction the light travels (dir) or position (point)
-uniform vec3 u_light_rgb[%(n)d];      // irradiance at normal incidence (dir) or at 1 m (point)
-uniform vec3 u_ambient;
-uniform vec3 u_cam_pos;
-uniform vec3 u_ring_rgb;              // coaxial ring light irradiance at 1 m (IR mode)
-uniform float u_specular;
-out vec3 v_rad;
-out vec3 v_irr;
-out vec2 v_uv;
-flat out int v_id;
-out float v_z;
-void main() {
-    vec4 pc = u_world_to_cam * vec4(a_pos, 1.0);
-    vec3 n = normalize(a_nrm);
-    vec3 dc = u_cam_pos - a_pos;
-    float dc2 = max(dot(dc, dc), 1e-4);
-    vec3 vdir = dc * inversesqrt(dc2);
-    if (dot(n, vdir) < 0.0) n = -n;   // two-sided surfaces (planes, props)
-    vec3 e = u_ambient;
-    vec3 spec = vec3(0.0);
-    for (int i = 0; i < u_n_lights; ++i) {
-        vec3 l;
-        vec3 irr = u_light_rgb[i];
-        if (u_light_kind[i] == 0) {
-            l = -normalize(u_light_vec[i]);
-        } else {
-            vec3 d = u_light_vec[i] - a_pos;
-            float r2 = max(dot(d, d), 1e-4);
-            l = d * inversesqrt(r2);
-            irr /= r2;
-        }
-        float ndl = max(dot(n, l), 0.0);
-        e += irr * ndl;
-        vec3 h = normalize(l + vdir);
-        float s = max(dot(n, h), 0.0);
-        s *= s; s *= s; s *= s; s *= s; s *= s;  // s^32 by squaring: pow() is exp2(log2) on llvmpipe, ~1/3 of the vertex stage
-        spec += irr * (ndl > 0.0 ? s : 0.0);
-    }
-    v_irr = e * 0.318309886;
-    v_uv = a_uv;
-    v_rad = (a_uv.x < 0.0 ? a_alb * v_irr : vec3(0.0)) + u_specular * spec * 0.05;
-    // Retro-reflective material returns light towards its source: with a ring light
-    // around the lens the whole sphere appears uniformly bright (glass-bead tape).
-    v_rad += a_retro * u_ring_rgb / dc2;
-    v_id = a_id;
-    v_z = pc.z;
-    gl_Position = u_proj * pc;
-}
-""" % {"n": MAX_LIGHTS}
-
-# TEXTURED is 1 for meshes with printed (textured) faces, else 0: without the texture
-# branch the compiler drops two varyings, and the moving body's fragments cost ~20 %
-# less on llvmpipe (same output: untextured vertices never take the branch).
-_FRAG = """
-#version 330 core
-#define TEXTURED %(textured)d
-in vec3 v_rad;
-in vec3 v_irr;
-in vec2 v_uv;
-flat in int v_id;
-in float v_z;
-uniform sampler2D u_tex;
-layout(location = 0) out vec4 o_rad;
-layout(location = 1) out int o_id;
-layout(location = 2) out float o_depth;
-void main() {
-    vec3 rad = v_rad;
-#if TEXTURED
-    if (v_uv.x >= 0.0) rad += texture(u_tex, v_uv).rgb * v_irr;  // printed boards
-#endif
-    o_rad = vec4(rad, 1.0);
-    o_id = v_id;
-    o_depth = v_z;
-}
-"""
 
 
 @dataclass
@@ -149,28 +59,6 @@ class Light:
     kind: str
     vector: np.ndarray
     rgb: np.ndarray
-
-
-@dataclass
-class GeometryBuffers:
-    """Indexed vertex arrays for one draw call.
-
-    positions, normals : (V, 3) float32, world frame (static) or updated per frame
-    albedo : (V, 3) float32 linear RGB in 0..1
-    ids : (V,) int32 (0 is background; see :mod:`simbench.render.ids`)
-    retro : (V,) float32 retro-reflective gain (0 for ordinary surfaces)
-    faces : (T, 3) uint32 vertex indices
-    uv : (V, 2) float32 texture coordinates in 0..1 for textured vertices, -1 elsewhere
-        (None: untextured); the texture is set with :meth:`Rasterizer.set_texture`
-    """
-
-    positions: np.ndarray
-    normals: np.ndarray
-    albedo: np.ndarray
-    ids: np.ndarray
-    retro: np.ndarray
-    faces: np.ndarray
-    uv: np.ndarray | None = None
 
 
 Rect = tuple[int, int, int, int]  # x0, y0, x1, y1: pixel columns x0..x1-1, rows y0..y1-1
@@ -232,119 +120,6 @@ def _ndc_bounds(pos, M):
     return xmin, xmax, ymin, ymax, wmin
 
 
-def _compile(src: str, kind) -> int:
-    sh = gl.glCreateShader(kind)
-    gl.glShaderSource(sh, src)
-    gl.glCompileShader(sh)
-    if not gl.glGetShaderiv(sh, gl.GL_COMPILE_STATUS):
-        raise RuntimeError(gl.glGetShaderInfoLog(sh).decode())
-    return sh
-
-
-def closed_outward_faces(faces: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """Which faces ``(T,)`` bool belong to a closed, consistently oriented, outward-wound component.
-
-    A component is closed and consistently oriented when each of its directed edges
-    ``(a, b)`` occurs once and its reverse ``(b, a)`` occurs too; outward when its signed
-    volume (counter-clockwise faces seen from outside) is positive. The back faces of
-    such a component are always hidden behind its front faces (for a camera outside it),
-    so culling them changes no pixel.
-    """
-    F = np.asarray(faces, np.int64).reshape(-1, 3)
-    P = np.asarray(positions, np.float64)
-    nv = len(P)
-    if len(F) == 0:
-        return np.zeros(0, bool)
-    e = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-    n_comp, label = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nv, nv)),
-                                         directed=False)
-    key = e[:, 0] * nv + e[:, 1]
-    uniq, count = np.unique(key, return_counts=True)
-    bad_edge = ~np.isin(e[:, 1] * nv + e[:, 0], key) | (count[np.searchsorted(uniq, key)] > 1)
-    open_comp = np.zeros(n_comp, bool)
-    open_comp[label[e[bad_edge, 0]]] = True
-    a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
-    volume = np.bincount(label[F[:, 0]], weights=np.einsum("ij,ij->i", a, np.cross(b, c)), minlength=n_comp)
-    good = ~open_comp & (volume > 0)
-    return good[label[F[:, 0]]]
-
-
-class _Mesh:
-    def __init__(self, buf: GeometryBuffers, dynamic: bool) -> None:
-        self.n = len(buf.positions)
-        self.n_idx = int(np.asarray(buf.faces).size)
-        # Closed outward meshes (the body, markers, props) first, drawn with back faces
-        # culled: llvmpipe's cost for the moving body is per triangle (setup and binning),
-        # and half of a closed mesh's triangles face away. Open surfaces stay two-sided.
-        faces = np.asarray(buf.faces, np.uint32).reshape(-1, 3)
-        closed = closed_outward_faces(faces, buf.positions)
-        # Within each group, faces in order of their lowest vertex index: llvmpipe reuses a
-        # shaded vertex only while it is in a small cache, and this keeps neighbours close
-        # (~15 % less vertex work on the body).
-        faces = np.concatenate([g[np.argsort(g.min(axis=1), kind="stable")] for g in (faces[closed], faces[~closed])])
-        self.n_cull_idx = 3 * int(closed.sum())
-        self.vao = gl.glGenVertexArrays(1)
-        gl.glBindVertexArray(self.vao)
-        self.ebo = gl.glGenBuffers(1)
-        gl.glBindBuffer(gl.GL_ELEMENT_ARRAY_BUFFER, self.ebo)
-        gl.glBufferData(gl.GL_ELEMENT_ARRAY_BUFFER, np.ascontiguousarray(faces).ravel(), gl.GL_STATIC_DRAW)
-        usage = gl.GL_DYNAMIC_DRAW if dynamic else gl.GL_STATIC_DRAW
-        self.vbo_pos = gl.glGenBuffers(1)
-        self.vbo_nrm = gl.glGenBuffers(1)
-        for loc, vbo, arr in ((0, self.vbo_pos, buf.positions), (1, self.vbo_nrm, buf.normals)):
-            gl.glBindBuffer(gl.GL_ARRAY_BUFFER, vbo)
-            gl.glBufferData(gl.GL_ARRAY_BUFFER, np.ascontiguousarray(arr, np.float32), usage)
-            gl.glEnableVertexAttribArray(loc)
-            gl.glVertexAttribPointer(loc, 3, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
-        self._static = []
-        uv = np.full((self.n, 2), -1.0, np.float32) if buf.uv is None else np.ascontiguousarray(buf.uv, np.float32)
-        self.textured = bool(np.any(uv[:, 0] >= 0))  # drawn with the texturing program
-        for loc, arr, comps, ityp in (
-            (2, np.ascontiguousarray(buf.albedo, np.float32), 3, None),
-            (3, np.ascontiguousarray(buf.ids, np.int32), 1, gl.GL_INT),
-            (4, np.ascontiguousarray(buf.retro, np.float32), 1, None),
-            (5, uv, 2, None),
-        ):
-            vbo = gl.glGenBuffers(1)
-            self._static.append(vbo)
-            gl.glBindBuffer(gl.GL_ARRAY_BUFFER, vbo)
-            gl.glBufferData(gl.GL_ARRAY_BUFFER, arr, gl.GL_STATIC_DRAW)
-            gl.glEnableVertexAttribArray(loc)
-            if ityp is None:
-                gl.glVertexAttribPointer(loc, comps, gl.GL_FLOAT, gl.GL_FALSE, 0, None)
-            else:
-                gl.glVertexAttribIPointer(loc, comps, ityp, 0, None)
-        gl.glBindVertexArray(0)
-
-    def free(self) -> None:
-        """Delete the vertex array and every buffer of this mesh (the context must be current)."""
-        gl.glDeleteVertexArrays(1, [self.vao])
-        gl.glDeleteBuffers(3 + len(self._static), [self.ebo, self.vbo_pos, self.vbo_nrm, *self._static])
-        self._static = []
-
-    def update(self, positions: np.ndarray, normals: np.ndarray) -> None:
-        if len(positions) != self.n:
-            raise ValueError(f"dynamic geometry has {self.n} vertices, got {len(positions)}")
-        gl.glBindBuffer(gl.GL_ARRAY_BUFFER, self.vbo_pos)
-        gl.glBufferSubData(gl.GL_ARRAY_BUFFER, 0, np.ascontiguousarray(positions, np.float32))
-        gl.glBindBuffer(gl.GL_ARRAY_BUFFER, self.vbo_nrm)
-        gl.glBufferSubData(gl.GL_ARRAY_BUFFER, 0, np.ascontiguousarray(normals, np.float32))
-
-    def draw(self) -> None:
-        gl.glBindVertexArray(self.vao)
-        if self.n_cull_idx:
-            # Counter-clockwise seen from outside in the world becomes clockwise in GL
-            # window coordinates: the projection keeps OpenCV's y-down rows (see projection_from_K).
-            gl.glEnable(gl.GL_CULL_FACE)
-            gl.glFrontFace(gl.GL_CW)
-            gl.glCullFace(gl.GL_BACK)
-            gl.glDrawElements(gl.GL_TRIANGLES, self.n_cull_idx, gl.GL_UNSIGNED_INT, None)
-            gl.glDisable(gl.GL_CULL_FACE)
-        if self.n_idx > self.n_cull_idx:
-            gl.glDrawElements(gl.GL_TRIANGLES, self.n_idx - self.n_cull_idx, gl.GL_UNSIGNED_INT,
-                              ctypes.c_void_p(4 * self.n_cull_idx))
-
-
 def projection_from_K(K: np.ndarray, width: int, height: int, znear: float, zfar: float) -> np.ndarray:
     """OpenCV camera frame to GL clip space, such that window pixel row v is OpenCV's v.
 
@@ -377,13 +152,14 @@ class Rasterizer:
         self.context = context or GLContext(64, 64)
         self.context.make_current()
         self._texture: int | None = None
-        # Programs for textured and untextured meshes (see _FRAG), with their uniform locations.
+        # Programs for textured and untextured meshes (see shaders.FRAGMENT_SHADER), with their uniform locations.
         self._progs: dict[bool, int] = {}
         self._locs: dict[bool, dict[str, int]] = {}
         for textured in (True, False):
             prog = gl.glCreateProgram()
-            shaders = [_compile(src, kind) for src, kind in ((_VERT, gl.GL_VERTEX_SHADER),
-                                                             (_FRAG % {"textured": int(textured)}, gl.GL_FRAGMENT_SHADER))]
+            sources = ((VERTEX_SHADER, gl.GL_VERTEX_SHADER),
+                       (FRAGMENT_SHADER % {"textured": int(textured)}, gl.GL_FRAGMENT_SHADER))
+            shaders = [compile_shader(src, kind) for src, kind in sources]
             for shader in shaders:
                 gl.glAttachShader(prog, shader)
             gl.glLinkProgram(prog)
@@ -398,8 +174,8 @@ class Rasterizer:
                              "u_light_rgb", "u_ambient", "u_cam_pos", "u_ring_rgb", "u_specular")
             }
         self._fbos: dict[tuple[int, int], _Target] = {}
-        self._static: _Mesh | None = None
-        self._dynamic: _Mesh | None = None
+        self._static: Mesh | None = None
+        self._dynamic: Mesh | None = None
         self._static_cache: dict[tuple, _View] = {}
         self._dynamic_positions: np.ndarray | None = None
 
@@ -485,7 +261,7 @@ class Rasterizer:
         self.context.make_current()
         if self._static is not None:
             self._static.free()
-        self._static = _Mesh(buf, dynamic=False)
+        self._static = Mesh(buf, dynamic=False)
         self._clear_static_cache()
 
     def set_dynamic(self, buf: GeometryBuffers) -> None:
@@ -493,7 +269,7 @@ class Rasterizer:
         self.context.make_current()
         if self._dynamic is not None:
             self._dynamic.free()
-        self._dynamic = _Mesh(buf, dynamic=True)
+        self._dynamic = Mesh(buf, dynamic=True)
         self._dynamic_positions = np.array(buf.positions, np.float32)
 
     def set_texture(self, image: np.ndarray) -> None:
@@ -696,37 +472,12 @@ class Rasterizer:
         if len(lights) > MAX_LIGHTS:
             raise ValueError(f"at most {MAX_LIGHTS} lights are supported, got {len(lights)}")
         self.context.make_current()
-        W2C = np.eye(4)
-        W2C[:3, :3] = R
-        W2C[:3, 3] = t
-        P = projection_from_K(np.asarray(K, float), width, height, znear, zfar)
-        cam_pos = -np.asarray(R).T @ np.asarray(t)
-        kinds = np.zeros(MAX_LIGHTS, np.int32)
-        vecs = np.zeros((MAX_LIGHTS, 3), np.float32)
-        rgbs = np.zeros((MAX_LIGHTS, 3), np.float32)
-        for i, light in enumerate(lights):
-            kinds[i] = 0 if light.kind == "directional" else 1
-            vecs[i] = light.vector
-            rgbs[i] = light.rgb
-        uniforms = (W2C.astype(np.float32), P.astype(np.float32), kinds, vecs, rgbs, len(lights),
-                    np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
-                    np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
+        W2C, P, uniforms = _view_uniforms(width, height, K, R, t, lights, ambient_rgb, ring_rgb, znear, zfar, specular)
         want_rad = any(o in outputs for o in ("radiance", "radiance_rgba", "radiance_red", "radiance_texture"))
         attachments = (want_rad, "ids" in outputs, "depth" in outputs)
+        view = rect = None
         if cache_static and self._static is not None:
-            key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
-            view = self._static_cache.get(key)
-            if view is None:
-                if len(self._static_cache) >= 16:  # bounded: drop the oldest view/light state
-                    old = self._static_cache.pop(next(iter(self._static_cache)))
-                    self._delete_target(old.static)
-                    self._delete_target(old.work)
-                static = self._new_framebuffer(width, height)
-                self._draw(static.fbo, width, height, (self._static,), True, uniforms)
-                # A working target of its own per view, so that only what the moving geometry
-                # drew needs restoring: the first restore copies the whole image.
-                view = _View(static, self._new_framebuffer(width, height), [(0, 0, width, height)] * 4)
-                self._static_cache[key] = view
+            view = self._cached_view(width, height, uniforms)
             self._restore(view, attachments)
             self._draw(view.work.fbo, width, height, (self._dynamic,), False, uniforms, attachments)
             rect = self._dynamic_rect(P, W2C, width, height, znear)
@@ -736,40 +487,87 @@ class Rasterizer:
                         view.dirty[k] = _union(view.dirty[k], rect)
             target = view.work
         else:
-            view = None
             target = self._framebuffer(width, height)
             self._draw(target.fbo, width, height, (self._static, self._dynamic), True, uniforms, attachments)
         out: dict = {}
-        H, W = height, width
         if "radiance_texture" in outputs:
             out["radiance_texture"] = target.radiance
-
-        def read(attachment, fmt, typ, dtype, shape, name):
-            gl.glReadBuffer(attachment)
-            if view is not None:
-                return self._read_view(view, name, rect, fmt, typ, dtype, shape)
-            # Into the caller's array when given: PyOpenGL's own fresh array costs page
-            # faults on every call (~40 % of a float read-back here).
-            dst = None if buffers is None else buffers.get(name)
-            if dst is not None:
-                if dst.shape != shape or dst.dtype != dtype or not dst.flags.c_contiguous:
-                    raise ValueError(f"buffer {name!r} must be C-contiguous {shape} {np.dtype(dtype)}")
-                gl.glReadPixels(0, 0, W, H, fmt, typ, dst)
-                return dst
-            return np.frombuffer(gl.glReadPixels(0, 0, W, H, fmt, typ), dtype).reshape(shape)
-
-        if "radiance" in outputs:
-            # Straight to RGB: measured here (Mesa llvmpipe, 640x480) it costs ~10 % more
-            # than the RGBA read-back, where dropping alpha afterwards costs another ~100 %.
-            out["radiance"] = read(gl.GL_COLOR_ATTACHMENT0, gl.GL_RGB, gl.GL_FLOAT, np.float32, (H, W, 3), "radiance")
-        if "radiance_rgba" in outputs:
-            out["radiance_rgba"] = read(gl.GL_COLOR_ATTACHMENT0, gl.GL_RGBA, gl.GL_FLOAT, np.float32, (H, W, 4),
-                                        "radiance_rgba")
-        if "radiance_red" in outputs:  # monochrome (IR) sensors: one channel is enough
-            out["radiance"] = read(gl.GL_COLOR_ATTACHMENT0, gl.GL_RED, gl.GL_FLOAT, np.float32, (H, W, 1),
-                                   "radiance_red")
-        if "ids" in outputs:
-            out["ids"] = read(gl.GL_COLOR_ATTACHMENT1, gl.GL_RED_INTEGER, gl.GL_INT, np.int32, (H, W), "ids")
-        if "depth" in outputs:
-            out["depth"] = read(gl.GL_COLOR_ATTACHMENT2, gl.GL_RED, gl.GL_FLOAT, np.float32, (H, W), "depth")
+        for name, key, attachment, fmt, typ, dtype, channels in _READ_BACKS:
+            if name in outputs:
+                shape = (height, width) if channels is None else (height, width, channels)
+                out[key] = self._read(view, rect, buffers, attachment, fmt, typ, dtype, shape, name)
         return out
+
+    def _cached_view(self, width: int, height: int, uniforms: tuple) -> _View:
+        """The cached view of this size and these uniforms (view and light state); a new
+        one, with the static set drawn into it, when there is none (up to 16 are kept)."""
+        key = (width, height, b"".join(np.asarray(u).tobytes() for u in uniforms))
+        view = self._static_cache.get(key)
+        if view is None:
+            if len(self._static_cache) >= 16:  # bounded: drop the oldest view/light state
+                old = self._static_cache.pop(next(iter(self._static_cache)))
+                self._delete_target(old.static)
+                self._delete_target(old.work)
+            static = self._new_framebuffer(width, height)
+            self._draw(static.fbo, width, height, (self._static,), True, uniforms)
+            # A working target of its own per view, so that only what the moving geometry
+            # drew needs restoring: the first restore copies the whole image.
+            view = _View(static, self._new_framebuffer(width, height), [(0, 0, width, height)] * 4)
+            self._static_cache[key] = view
+        return view
+
+    def _read(self, view: _View | None, rect: Rect | None, buffers: dict[str, np.ndarray] | None,
+              attachment, fmt, typ, dtype, shape: tuple[int, ...], name: str) -> np.ndarray:
+        """Read-back of output ``name`` from colour ``attachment`` of the target just drawn:
+        through the cached ``view`` when there is one (``_read_view``), else the whole image,
+        into the caller's array ``buffers[name]`` when given."""
+        gl.glReadBuffer(attachment)
+        if view is not None:
+            return self._read_view(view, name, rect, fmt, typ, dtype, shape)
+        # Into the caller's array when given: PyOpenGL's own fresh array costs page
+        # faults on every call (~40 % of a float read-back here).
+        dst = None if buffers is None else buffers.get(name)
+        H, W = shape[:2]
+        if dst is not None:
+            if dst.shape != shape or dst.dtype != dtype or not dst.flags.c_contiguous:
+                raise ValueError(f"buffer {name!r} must be C-contiguous {shape} {np.dtype(dtype)}")
+            gl.glReadPixels(0, 0, W, H, fmt, typ, dst)
+            return dst
+        return np.frombuffer(gl.glReadPixels(0, 0, W, H, fmt, typ), dtype).reshape(shape)
+
+
+# The outputs read back, in this order: output name, key of the returned dict, attachment,
+# GL format and type, dtype, channels (None: an (H, W) image). Radiance goes straight to RGB:
+# measured here (Mesa llvmpipe, 640x480) that costs ~10 % more than the RGBA read-back, where
+# dropping alpha afterwards costs another ~100 %. Monochrome (IR) sensors ask for
+# ``radiance_red``: one channel is enough.
+_READ_BACKS = (
+    ("radiance", "radiance", gl.GL_COLOR_ATTACHMENT0, gl.GL_RGB, gl.GL_FLOAT, np.float32, 3),
+    ("radiance_rgba", "radiance_rgba", gl.GL_COLOR_ATTACHMENT0, gl.GL_RGBA, gl.GL_FLOAT, np.float32, 4),
+    ("radiance_red", "radiance", gl.GL_COLOR_ATTACHMENT0, gl.GL_RED, gl.GL_FLOAT, np.float32, 1),
+    ("ids", "ids", gl.GL_COLOR_ATTACHMENT1, gl.GL_RED_INTEGER, gl.GL_INT, np.int32, None),
+    ("depth", "depth", gl.GL_COLOR_ATTACHMENT2, gl.GL_RED, gl.GL_FLOAT, np.float32, None),
+)
+
+
+def _view_uniforms(width: int, height: int, K: np.ndarray, R: np.ndarray, t: np.ndarray, lights: list[Light],
+                   ambient_rgb: np.ndarray, ring_rgb: np.ndarray | None, znear: float, zfar: float,
+                   specular: float) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """World-to-camera ``W2C`` (4, 4), projection ``P`` (4, 4) and the uniforms of one view
+    and light state, in the order :meth:`Rasterizer._draw` takes them."""
+    W2C = np.eye(4)
+    W2C[:3, :3] = R
+    W2C[:3, 3] = t
+    P = projection_from_K(np.asarray(K, float), width, height, znear, zfar)
+    cam_pos = -np.asarray(R).T @ np.asarray(t)
+    kinds = np.zeros(MAX_LIGHTS, np.int32)
+    vecs = np.zeros((MAX_LIGHTS, 3), np.float32)
+    rgbs = np.zeros((MAX_LIGHTS, 3), np.float32)
+    for i, light in enumerate(lights):
+        kinds[i] = 0 if light.kind == "directional" else 1
+        vecs[i] = light.vector
+        rgbs[i] = light.rgb
+    uniforms = (W2C.astype(np.float32), P.astype(np.float32), kinds, vecs, rgbs, len(lights),
+                np.asarray(ambient_rgb, np.float32), cam_pos.astype(np.float32),
+                np.zeros(3, np.float32) if ring_rgb is None else np.asarray(ring_rgb, np.float32), float(specular))
+    return W2C, P, uniforms
