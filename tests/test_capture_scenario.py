@@ -21,6 +21,8 @@ from simbench.scenario import CaptureGapsConfig, load_scenario
 from simbench.stage.capture import load_capture_clip, seeded_gaps
 from simbench.stage.renderer import mid_exposure_times
 
+from helpers import blob_centroid
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 QUALISYS = DATA / "c3d" / "Qualisys.c3d"
 pytestmark = pytest.mark.skipif(not QUALISYS.is_file(), reason=f"shared real data not found at {DATA}")
@@ -109,26 +111,6 @@ def test_absent_samples_are_not_rendered(qualisys_render):
     assert seen2[~absent].mean() > 0.8
 
 
-def _blob_centroid(image: np.ndarray, id_map: np.ndarray, marker: int) -> tuple[float, float] | None:
-    """Intensity centroid of one marker's blob (as tests/test_render_markers.py): its
-    id-map pixels grown by one pixel, minus pixels near other markers, background removed."""
-    own = (id_map == idc.MARKER_BASE + marker).astype(np.uint8)
-    if own.sum() == 0:
-        return None
-    grown = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
-    other = (id_map >= idc.MARKER_BASE) & (id_map != idc.MARKER_BASE + marker)
-    mask = grown & ~cv2.dilate(other.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    ys, xs = np.nonzero(mask)
-    if len(xs) == 0:
-        return None
-    grey = image[..., 0].astype(float)
-    bg = np.median(grey[max(ys.min() - 6, 0): ys.max() + 7, max(xs.min() - 6, 0): xs.max() + 7])
-    w = np.clip(grey[ys, xs] - bg, 0, None)
-    if w.sum() <= 0:
-        return None
-    return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
-
-
 def test_marker_blobs_sit_on_the_projections(qualisys_render):
     """cv2.projectPoints of every visible capture marker vs its blob's intensity centroid."""
     sc, bench, seq = qualisys_render
@@ -139,7 +121,7 @@ def test_marker_blobs_sit_on_the_projections(qualisys_render):
         for c, cam in enumerate(cal):
             for m in np.flatnonzero(gt.marker_visible[f, c]):
                 uv, _ = cv2.projectPoints(gt.markers_3d[f, m][None], cam.rvec, cam.t, cam.K, cam.dist)
-                cen = _blob_centroid(seq.frames[f, c], gt.id_maps[cam.name][f], m)
+                cen = blob_centroid(seq.frames[f, c], gt.id_maps[cam.name][f], m)
                 assert cen is not None, f"visible marker {gt.marker_names[m]} has no blob in {cam.name} frame {f}"
                 errors.append(np.hypot(*(np.array(cen) - uv.ravel())))
     errors = np.array(errors)

@@ -38,20 +38,23 @@ LIMB_SEGMENTS = [
     ("thigh_l", "shank_l"), ("shank_l", "foot_l"), ("thigh_r", "shank_r"), ("shank_r", "foot_r"),
 ]
 
-@pytest.fixture(scope="module")
-def walk():
-    clip = load_bvh(WALK)
+
+def _retargeted(path: Path):
+    """The clip, its retargeted keys and their body positions and rotations."""
+    clip = load_bvh(path)
     keys = retarget_bvh_keys(clip, PARAMS)
     pos, rot = keys.kinematics.forward(keys.qpos)
     return clip, keys, pos, rot
+
+
+@pytest.fixture(scope="module")
+def walk():
+    return _retargeted(WALK)
 
 
 @pytest.fixture(scope="module")
 def jacks():
-    clip = load_bvh(JACKS)
-    keys = retarget_bvh_keys(clip, PARAMS)
-    pos, rot = keys.kinematics.forward(keys.qpos)
-    return clip, keys, pos, rot
+    return _retargeted(JACKS)
 
 
 # ----------------------------------------------------------------------------- parsing

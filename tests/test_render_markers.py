@@ -14,6 +14,8 @@ from simbench.render import ids as idc
 from simbench.stage.rendering import render_frames
 from simbench.scenario import load_scenario
 
+from helpers import blob_centroid
+
 
 def _quickstart(**overrides):
     base = {"duration_s": 0.2, "sensor.shot_noise": False, "sensor.read_noise_e": 0.0, "sensor.motion_blur": False}
@@ -30,26 +32,6 @@ def clean_render():
     return sc, seq
 
 
-def _blob_centroids(image: np.ndarray, id_map: np.ndarray, marker: int) -> tuple[float, float] | None:
-    """Intensity centroid of one marker's blob: its id-map pixels grown by one pixel
-    (to take in the anti-aliased rim), minus pixels of other markers."""
-    own = (id_map == idc.MARKER_BASE + marker).astype(np.uint8)
-    if own.sum() == 0:
-        return None
-    grown = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
-    other = (id_map >= idc.MARKER_BASE) & (id_map != idc.MARKER_BASE + marker)
-    mask = grown & ~cv2.dilate(other.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    grey = image[..., 0].astype(float)
-    ys, xs = np.nonzero(mask)
-    if len(xs) == 0:
-        return None
-    bg = np.median(grey[max(ys.min() - 6, 0): ys.max() + 7, max(xs.min() - 6, 0): xs.max() + 7])
-    w = np.clip(grey[ys, xs] - bg, 0, None)
-    if w.sum() <= 0:
-        return None
-    return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
-
-
 def test_projected_marker_centres_land_on_blob_centroids(clean_render):
     """Issue 2 acceptance: cv2.projectPoints of each visible marker centre vs its blob's
     intensity centroid: median <= 0.25 px, 95th percentile <= 0.5 px."""
@@ -62,7 +44,7 @@ def test_projected_marker_centres_land_on_blob_centroids(clean_render):
             uv_cv, _ = cv2.projectPoints(gt.markers_3d[f], cam.rvec, cam.t, cam.K, cam.dist)
             uv_cv = uv_cv.reshape(-1, 2)
             for m in np.nonzero(gt.marker_visible[f, c])[0]:
-                cen = _blob_centroids(seq.frames[f, c], gt.id_maps[cam.name][f], m)
+                cen = blob_centroid(seq.frames[f, c], gt.id_maps[cam.name][f], m)
                 assert cen is not None, f"visible marker {gt.marker_names[m]} has no blob in {cam.name} frame {f}"
                 errors.append(np.hypot(cen[0] - uv_cv[m, 0], cen[1] - uv_cv[m, 1]))
     errors = np.array(errors)

@@ -13,18 +13,14 @@ from pathlib import Path
 
 import duckdb
 
+from helpers import TINY_RUN_SET
+
 QUICKSTART = Path("scenarios/quickstart.toml").resolve()
 
 SWEEP = f"""
 name = "kill_me"
 scenario = "{QUICKSTART}"
-[set]
-"rig.count" = 2
-"rig.width" = 320
-"rig.height" = 240
-duration_s = 0.3
-"sensor.antialias" = 1
-"markers_pipeline.solve_skeleton" = false
+{TINY_RUN_SET}
 [[factors]]
 field = "markers_pipeline.tracker"
 values = ["alpha_beta", "kalman", "imm"]

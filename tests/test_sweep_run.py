@@ -15,22 +15,17 @@ from simbench.sweeps.results_db import ResultsDB
 from simbench.sweeps.sweep import load_sweep, run_sweep
 from simbench.sweeps.report import write_sweep_report
 
+from helpers import TINY_RUN_SET
+
 QUICKSTART = Path("scenarios/quickstart.toml").resolve()
 # A run that passes the sweep's validation and fails when it runs: a window past the clip's end.
 WALK_BVH = Path("scenarios/data/bvh/131_01.bvh").resolve()
 
-# Tiny runs: 2 cameras at 320x240, 0.3 s (9 frames), no supersampling, no skeleton.
+# Tiny runs (helpers.TINY_RUN_SET): 2 cameras at 320x240, 0.3 s (9 frames), no supersampling, no skeleton.
 SWEEP = f"""
 name = "tiny_trackers"
 scenario = "{QUICKSTART}"
-""" + """
-[set]
-"rig.count" = 2
-"rig.width" = 320
-"rig.height" = 240
-duration_s = 0.3
-"sensor.antialias" = 1
-"markers_pipeline.solve_skeleton" = false
+""" + TINY_RUN_SET + """
 [[factors]]
 name = "variant"
 [factors.levels]

@@ -1,0 +1,47 @@
+"""What several test modules share besides fixtures (those are in ``conftest.py``): a marker's
+blob centroid found through the exact id map, and the settings of a tiny run for sweep files.
+
+pytest puts ``tests/`` on ``sys.path`` (its default "prepend" import mode, no ``__init__.py``
+here), so test modules import this as ``helpers``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from simbench.render import ids as idc
+
+#: The ``[set]`` table of a tiny run of the quickstart in a sweep file: 2 cameras at 320x240,
+#: 0.3 s (9 frames), no supersampling, no skeleton.
+TINY_RUN_SET = """
+[set]
+"rig.count" = 2
+"rig.width" = 320
+"rig.height" = 240
+duration_s = 0.3
+"sensor.antialias" = 1
+"markers_pipeline.solve_skeleton" = false
+"""
+
+
+def blob_centroid(image: np.ndarray, id_map: np.ndarray, marker: int) -> tuple[float, float] | None:
+    """Intensity centroid ``(x, y)`` px of one marker's blob in a rendered frame (None: not
+    drawn): its id-map pixels grown by one pixel (to take in the anti-aliased rim), minus
+    pixels near other markers, weighted by the first channel above the local background
+    (the median of the blob's box grown by 6 pixels)."""
+    own = (id_map == idc.MARKER_BASE + marker).astype(np.uint8)
+    if own.sum() == 0:
+        return None
+    grown = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
+    other = (id_map >= idc.MARKER_BASE) & (id_map != idc.MARKER_BASE + marker)
+    mask = grown & ~cv2.dilate(other.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    grey = image[..., 0].astype(float)
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return None
+    bg = np.median(grey[max(ys.min() - 6, 0): ys.max() + 7, max(xs.min() - 6, 0): xs.max() + 7])
+    w = np.clip(grey[ys, xs] - bg, 0, None)
+    if w.sum() <= 0:
+        return None
+    return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
