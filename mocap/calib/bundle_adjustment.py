@@ -223,39 +223,42 @@ class _Observations:
     def collect(cls, board_corners_px, object_points, board_use, t_wb, wand_px, wand_points, wand_distances_m) -> "_Observations":
         if board_corners_px is not None:
             corners = np.asarray(board_corners_px, dtype=np.float64)
-            V = corners.shape[1]
             views = np.flatnonzero(np.isfinite(np.asarray(t_wb)).all(axis=1) & np.asarray(board_use).any(axis=0))
-            view_slot = np.full(V, -1)
-            view_slot[views] = np.arange(len(views))
-            seen = np.isfinite(corners).all(axis=3) & np.asarray(board_use)[:, :, None] & (view_slot >= 0)[None, :, None]
-            bc, bv, bn = np.nonzero(seen)
-            b_uv = corners[bc, bv, bn]
+            V, view_slot, (bc, bv, bn), b_uv = _seen(corners, views, np.asarray(board_use)[:, :, None])
             obj = np.asarray(object_points, dtype=np.float64)
         else:
-            V, views = 0, np.zeros(0, dtype=int)
-            bc = bv = bn = np.zeros(0, dtype=int)
-            b_uv = np.zeros((0, 2))
-            view_slot = np.zeros(0, dtype=int)
+            V, views, view_slot, (bc, bv, bn), b_uv = _nothing_seen()
             obj = np.zeros((0, 3))
         dist_known = None
         if wand_px is not None:
             wpx = np.asarray(wand_px, dtype=np.float64)
-            F = wpx.shape[1]
             frames = np.flatnonzero(np.isfinite(np.asarray(wand_points)).all(axis=(1, 2)))
-            frame_slot = np.full(F, -1)
-            frame_slot[frames] = np.arange(len(frames))
-            wseen = np.isfinite(wpx).all(axis=3) & (frame_slot >= 0)[None, :, None]
-            wc, wf, wm = np.nonzero(wseen)
-            w_uv = wpx[wc, wf, wm]
+            F, frame_slot, (wc, wf, wm), w_uv = _seen(wpx, frames)
             dist_known = np.asarray(wand_distances_m, dtype=np.float64)
         else:
-            F, frames = 0, np.zeros(0, dtype=int)
-            wc = wf = wm = np.zeros(0, dtype=int)
-            w_uv = np.zeros((0, 2))
-            frame_slot = np.zeros(0, dtype=int)
+            F, frames, frame_slot, (wc, wf, wm), w_uv = _nothing_seen()
         if len(bc) + len(wc) == 0:
             raise ValueError("bundle_adjust: no observations (no board corners or wand markers seen)")
         return cls(V, views, view_slot, bc, bv, bn, b_uv, obj, F, frames, frame_slot, wc, wf, wm, w_uv, dist_known)
+
+
+def _seen(px: np.ndarray, adjusted: np.ndarray, use: np.ndarray | bool = True):
+    """The observations of ``px`` (C, N, K, 2) (cameras, views or frames, points) that the
+    adjustment fits: finite pixels of the ``adjusted`` views or frames where ``use`` (C, N, 1)
+    is set. Returns ``N``, the slot of each view or frame (-1: not adjusted), the camera,
+    view or frame and point index of each observation, and its pixel (n, 2)."""
+    n = px.shape[1]
+    slot = np.full(n, -1)
+    slot[adjusted] = np.arange(len(adjusted))
+    seen = np.isfinite(px).all(axis=3) & use & (slot >= 0)[None, :, None]
+    index = np.nonzero(seen)
+    return n, slot, index, px[index]
+
+
+def _nothing_seen():
+    """What :func:`_seen` returns, and the adjusted indices, where there are no observations."""
+    none = np.zeros(0, dtype=int)
+    return 0, none, np.zeros(0, dtype=int), (none, none, none), np.zeros((0, 2))
 
 
 class _RigProblem:
