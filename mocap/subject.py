@@ -61,9 +61,10 @@ class MarkerPlacement:
     offset_m: np.ndarray
 
     def __post_init__(self) -> None:
-        offset = np.asarray(self.offset_m, dtype=np.float64).reshape(-1)
+        offset = np.array(self.offset_m, dtype=np.float64).reshape(-1)
         if offset.shape != (3,) or not np.isfinite(offset).all():
             raise ValueError(f"marker {self.name!r}: offset_m must be 3 finite numbers (metres), got {self.offset_m!r}")
+        offset.setflags(write=False)
         object.__setattr__(self, "offset_m", offset)
 
 

@@ -21,11 +21,10 @@ Sets
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import trimesh
 
+from mocap.subject import MarkerPlacement
 from simbench.scenes.anthropometry import BodyDims, BodyParams, body_dimensions
 from simbench.scenes.surface import BodyPart, body_surface
 
@@ -59,29 +58,9 @@ MARKER_SETS: dict[str, tuple[str, ...]] = {
 }
 
 
-@dataclass(frozen=True, eq=False)
-class MarkerSpec:
-    """One marker.
-
-    Attributes
-    ----------
-    name : str
-    body : str
-        Body it is attached to (:data:`simbench.scenes.humanoid.BODY_NAMES`).
-    offset_m : (3,) float
-        Marker centre in that body's frame, metres.
-    """
-
-    name: str
-    body: str
-    offset_m: np.ndarray
-
-    def __post_init__(self) -> None:
-        off = np.asarray(self.offset_m, dtype=np.float64)
-        if off.shape != (3,):
-            raise ValueError(f"MarkerSpec {self.name!r}: offset_m must have 3 values, got shape {off.shape}")
-        off.setflags(write=False)
-        object.__setattr__(self, "offset_m", off)
+#: One marker on one body (name, body, ``offset_m`` in the body's frame): the capture product's
+#: type, so that the simulated subject and the pipeline's subject model place markers alike.
+MarkerSpec = MarkerPlacement
 
 
 def _unit(*v: float) -> np.ndarray:
