@@ -66,3 +66,14 @@ class FrozenModel(BaseModel):
     field is an error naming it, and a validated instance cannot change."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def omit_defaults(data: object, defaults: dict[str, object]) -> object:
+    """``data``, a model's serialisation, without the keys that equal their value in ``defaults``:
+    fields added after scenarios' content hashes were recorded serialise (and hash) as before
+    them while they keep these values (for a model serializer in ``mode="wrap"``)."""
+    if isinstance(data, dict):
+        for key, value in defaults.items():
+            if key in data and data[key] == value:
+                del data[key]
+    return data

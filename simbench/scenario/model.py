@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field, model_serializer, model_validator
 
 from simbench.errors import ScenarioError
-from simbench.scenario.fields import FrozenModel, Int, Real, field_error
+from simbench.scenario.fields import FrozenModel, Int, Real, field_error, omit_defaults
 from simbench.scenario.sections import BodyConfig, CalibrationSceneConfig, CameraConfig, LightingConfig, MarkerPipelineConfig, MotionConfig, PipelineConfig, PropConfig, RigConfig, SensorConfig, SetConfig, ShirtPipelineConfig, SubjectConfig
 
 
@@ -62,10 +62,7 @@ class Scenario(FrozenModel):
     @model_serializer(mode="wrap")
     def _omit_builtin_pipeline(self, handler):
         # Scenarios without a [pipeline] section serialise (and hash) as they did before it.
-        data = handler(self)
-        if isinstance(data, dict) and data.get("pipeline", 0) is None:
-            del data["pipeline"]
-        return data
+        return omit_defaults(handler(self), {"pipeline": None})
 
     @property
     def command_pipeline(self) -> "PipelineConfig | None":

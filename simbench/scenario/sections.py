@@ -17,7 +17,7 @@ from pydantic import Field, StrictBool, ValidationInfo, field_validator, model_s
 from mocap.calib.boards import ARUCO_DICTIONARIES
 from mocap.errors import MocapInputError
 from mocap.trackers import get_tracker
-from simbench.scenario.fields import RGB, Distortion, FilePath, FrozenModel, Int, Length, Name, Real, Vec3, field_error
+from simbench.scenario.fields import RGB, Distortion, FilePath, FrozenModel, Int, Length, Name, Real, Vec3, field_error, omit_defaults
 from simbench.scenes.anthropometry import BODY_NAMES, BodyParams
 from simbench.scenes.markers import MARKER_SETS
 from simbench.scenes.motions import MOTIONS
@@ -138,15 +138,9 @@ class MotionConfig(FrozenModel):
     def _omit_unused_capture_fields(self, handler):
         # Scenarios without a capture serialise (and hash) as they did before these fields.
         data = handler(self)
-        if isinstance(data, dict) and not (self.c3d or self.trc):
-            for key, default in _CAPTURE_FIELDS.items():
-                if key in data and data[key] == default:
-                    del data[key]
-        if isinstance(data, dict):
-            for key, default in _BVH_FIELDS.items():
-                if key in data and data[key] == default:
-                    del data[key]
-        return data
+        if not (self.c3d or self.trc):
+            data = omit_defaults(data, _CAPTURE_FIELDS)
+        return omit_defaults(data, _BVH_FIELDS)
 
 
 class ClockConfig(FrozenModel):
@@ -209,14 +203,7 @@ class SensorConfig(FrozenModel):
     def _omit_unset_clock(self, handler):
         # Sensors without a clock (and the later fields at their defaults) serialise (and hash)
         # as they did before those fields.
-        data = handler(self)
-        if isinstance(data, dict):
-            if data.get("clock", 0) is None:
-                del data["clock"]
-            for key, default in _LATER_SENSOR_FIELDS.items():
-                if key in data and data[key] == default:
-                    del data[key]
-        return data
+        return omit_defaults(handler(self), {"clock": None, **_LATER_SENSOR_FIELDS})
 
 
 #: Sensor fields added after scenarios' content hashes were recorded: omitted from a sensor's
@@ -295,10 +282,7 @@ class RigConfig(FrozenModel):
     @model_serializer(mode="wrap")
     def _omit_unused_calibration_file(self, handler):
         # Rigs without a calibration file serialise (and hash) as they did before the field.
-        data = handler(self)
-        if isinstance(data, dict) and data.get("from_calibration", 0) is None:
-            del data["from_calibration"]
-        return data
+        return omit_defaults(handler(self), {"from_calibration": None})
 
 
 class LightConfig(FrozenModel):
@@ -422,10 +406,7 @@ class MarkerPipelineConfig(FrozenModel):
     @model_serializer(mode="wrap")
     def _omit_default_correction(self, handler):
         # Serialised (and hashed) as before the field while it is at its default.
-        data = handler(self)
-        if isinstance(data, dict) and data.get("rolling_shutter_correction") is True:
-            del data["rolling_shutter_correction"]
-        return data
+        return omit_defaults(handler(self), {"rolling_shutter_correction": True})
 
     @field_validator("tracker")
     @classmethod
