@@ -45,3 +45,29 @@ def blob_centroid(image: np.ndarray, id_map: np.ndarray, marker: int) -> tuple[f
     if w.sum() <= 0:
         return None
     return float((w * xs).sum() / w.sum()), float((w * ys).sum() / w.sum())
+
+
+def calibration_session(name: str, cameras: str, n_views: int, wand_frames: int, extra: str = "") -> str:
+    """A calibration session's scenario text: no subject markers, IR frames (4 ms, no blur),
+    the ``cameras`` given (a ``[rig]`` table or ``[[cameras]]`` tables), a 9x6 checkerboard of
+    8 cm squares in ``n_views`` poses (12 ms exposures), then ``wand_frames`` wand frames;
+    ``extra`` lines end the ``[calibration_scene]`` table."""
+    return f"""
+name = "{name}"
+duration_s = 0.1
+[subject]
+markers = "none"
+[sensor]
+mode = "ir"
+exposure_ms = 4.0
+motion_blur = false
+{cameras.strip()}
+[calibration_scene]
+board = "checkerboard"
+board_cols = 9
+board_rows = 6
+square_m = 0.08
+n_views = {n_views}
+board_exposure_ms = 12.0
+wand_frames = {wand_frames}
+{extra}"""

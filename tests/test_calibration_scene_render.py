@@ -30,30 +30,16 @@ from simbench.render.camera import cameras_from_scenario
 from simbench.render.lighting import Lighting
 from simbench.scenario import load_scenario
 
-RIG = """
-name = "calib_test"
-duration_s = 0.1
-[subject]
-markers = "none"
-[sensor]
-mode = "ir"
-exposure_ms = 4.0
-motion_blur = false
+from helpers import calibration_session
+
+RIG = calibration_session("calib_test", """
 [rig]
 count = 4
 radius_m = 3.0
 height_m = 2.0
 look_at = [0.0, 0.0, 0.95]
 hfov_deg = 50.0
-[calibration_scene]
-board = "checkerboard"
-board_cols = 9
-board_rows = 6
-square_m = 0.08
-n_views = 4
-board_exposure_ms = 12.0
-wand_frames = 8
-"""
+""", n_views=4, wand_frames=8)
 
 
 def _scenario(tmp_path, text: str = RIG, overrides: dict | None = None):

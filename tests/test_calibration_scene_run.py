@@ -24,15 +24,9 @@ from simbench.stage.calibration_scene import render_calibration_scene
 from simbench.pipelines.run import run_scenario
 from simbench.scenario import load_scenario
 
-PAIR = """
-name = "calib_pair"
-duration_s = 0.1
-[subject]
-markers = "none"
-[sensor]
-mode = "ir"
-exposure_ms = 4.0
-motion_blur = false
+from helpers import calibration_session
+
+PAIR = calibration_session("calib_pair", """
 [[cameras]]
 name = "left"
 position = [2.3, -1.93, 2.0]
@@ -44,16 +38,7 @@ position = [2.3, 1.93, 2.1]
 look_at = [0.0, 0.0, 1.0]
 hfov_deg = 54.0
 distortion = [-0.12, 0.05, 0.0, 0.0, 0.0]
-[calibration_scene]
-board = "checkerboard"
-board_cols = 9
-board_rows = 6
-square_m = 0.08
-n_views = 10
-board_exposure_ms = 12.0
-wand_frames = 24
-volume_half_m = [0.4, 0.4, 0.4]   # where both cameras see the wand
-"""
+""", n_views=10, wand_frames=24, extra="volume_half_m = [0.4, 0.4, 0.4]   # where both cameras see the wand\n")
 
 
 def _scenario(tmp_path, overrides: dict | None = None):
