@@ -13,8 +13,11 @@
 3. **Connected components**, filtered on area, on *fill ratio* (blob area over the area
    of its moment-equivalent ellipse: ~1 for discs and for motion-blur streaks, low for
    rings, crosses, merged clutter) and on elongation (generous, so that streaks pass).
-4. **Sub-pixel centroid**: intensity-weighted mean of the signal over each blob grown by
-   ``dilate_px`` pixels (so that the dim skirt cut by the threshold still counts).
+4. **Sub-pixel centroid**: mean of the pixels of each blob grown by ``dilate_px`` pixels
+   (so that the dim skirt cut by the threshold still counts), weighted by their *light* above
+   the local background: grey levels decoded through the camera's transfer function
+   (``response``, sRGB for webcams) first, since the encoded levels flatten a small blob's
+   profile and pull its centroid towards the pixel centres.
 """
 
 from __future__ import annotations
@@ -44,12 +47,18 @@ def local_background(gray: np.ndarray, cell: int, cells: int) -> np.ndarray:
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
+#: sRGB grey level (0-255) -> linear light (0-1), IEC 61966-2-1.
+_SRGB_TO_LINEAR = np.where(np.arange(256) <= 10, np.arange(256) / 255.0 / 12.92,
+                           ((np.arange(256) / 255.0 + 0.055) / 1.055) ** 2.4)
+
+
 def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
                foreground_mask: np.ndarray | None) -> Detections:
     if bg is None:
-        signal = cv2.subtract(gray, local_background(gray, params.background_cell_px, params.background_cells))
+        bg_level = local_background(gray, params.background_cell_px, params.background_cells)
     else:
-        signal = cv2.subtract(gray, bg)
+        bg_level = bg
+    signal = cv2.subtract(gray, bg_level)
     thr = threshold_level(signal, noise_std(gray), params)
     _, mask = cv2.threshold(signal, thr, 1, cv2.THRESH_BINARY)
     mask = gate(mask, gray, bg, foreground_mask, params)
@@ -71,8 +80,11 @@ def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
     pts = cv2.findNonZero(grown).reshape(-1, 2)
     px, py = pts[:, 0], pts[:, 1]
     lab = lab_img[py, px].astype(np.intp)
-    # Intensity-weighted centroid (weights: signal above the local background).
-    wts = signal[py, px].astype(np.float64)
+    # Light-weighted centroid (weights: light above the local background).
+    if params.response == "srgb":
+        wts = np.maximum(_SRGB_TO_LINEAR[gray[py, px]] - _SRGB_TO_LINEAR[bg_level[py, px]], 0.0)
+    else:
+        wts = signal[py, px].astype(np.float64)
     sw = np.bincount(lab, wts, n)
     cx = np.bincount(lab, wts * px, n)
     cy = np.bincount(lab, wts * py, n)
