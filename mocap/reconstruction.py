@@ -79,6 +79,17 @@ class ReconstructionParams:
         disables it (labels are then taken as the trackers give them).
     relabel_sweeps : int
         Correction sweeps per frame.
+    crowd_px : float
+        A view of a marker is *crowded* when another marker's image lies within this many
+        pixels of it (another label's observation, or another reconstructed marker's
+        reprojection: a neighbour whose blob merged with this one is not observed itself).
+        Its centroid then carries part of the neighbour's light: on bvh_walk's 1-2 pixel
+        markers, views with a neighbour within 3 px are 0.41 px RMS from the true
+        projection, isolated ones 0.12 px. 0 disables.
+    crowded_weight : float
+        Weight of a crowded view in the second triangulation (1 = no down-weighting). About
+        the ratio of the two error variances, so that a point seen cleanly by two cameras
+        barely moves for a crowded third, while a point seen only crowded is still measured.
     """
 
     epipolar_threshold_px: float = 4.0
@@ -97,6 +108,8 @@ class ReconstructionParams:
     gap_context_frames: int = 10
     relabel_gate_px: float | None = None
     relabel_sweeps: int = 2
+    crowd_px: float = 3.0
+    crowded_weight: float = 0.1
 
     def __post_init__(self) -> None:
         def need(cond: bool, field: str, value, fix: str) -> None:
@@ -118,6 +131,47 @@ class ReconstructionParams:
         need(self.gap_context_frames >= 1, "gap_context_frames", self.gap_context_frames, "must be >= 1 frame")
         need(self.relabel_gate_px is None or self.relabel_gate_px >= 0, "relabel_gate_px", self.relabel_gate_px, "must be None or >= 0 pixels (0 disables)")
         need(self.relabel_sweeps >= 1, "relabel_sweeps", self.relabel_sweeps, "must be >= 1")
+        need(self.crowd_px >= 0, "crowd_px", self.crowd_px, "must be >= 0 pixels (0 disables)")
+        need(0 < self.crowded_weight <= 1, "crowded_weight", self.crowded_weight, "must be in (0, 1]")
+
+
+def crowded_views(p2ds: np.ndarray, xyz: np.ndarray, calibration: Calibration, crowd_px: float) -> np.ndarray:
+    """Which observations have another marker's image within ``crowd_px`` pixels.
+
+    Parameters
+    ----------
+    p2ds : (C, F, M, 2) float
+        Labelled observations, distorted pixels, NaN where missing.
+    xyz : (F, M, 3) float
+        The markers' reconstructed points (metres), NaN where missing.
+    calibration : Calibration
+        The cameras of ``p2ds``, in its order.
+    crowd_px : float
+
+    Returns
+    -------
+    (C, F, M) bool
+        True where another label's observation, or another marker's reprojection, lies
+        within ``crowd_px`` of the observation.
+    """
+    C, F, M, _ = p2ds.shape
+    crowded = np.zeros((C, F, M), bool)
+    if crowd_px <= 0 or M < 2:
+        return crowded
+    finite = np.isfinite(xyz).all(axis=2).ravel()
+    proj = np.full((C, F * M, 2), np.nan)
+    if finite.any():
+        proj[:, finite] = calibration.project(xyz.reshape(-1, 3)[finite])
+    proj = proj.reshape(C, F, M, 2)
+    not_self = ~np.eye(M, dtype=bool)
+    for c in range(C):
+        obs = p2ds[c]
+        with np.errstate(invalid="ignore"):
+            d_obs = np.linalg.norm(obs[:, :, None] - obs[:, None], axis=3)    # (F, M, M)
+            d_proj = np.linalg.norm(obs[:, :, None] - proj[c][:, None], axis=3)
+            near = ((d_obs < crowd_px) | (d_proj < crowd_px)) & not_self
+        crowded[c] = near.any(axis=2) & np.isfinite(obs[..., 0])
+    return crowded
 
 
 def calibration_for_cameras(camera_names: list[str], calibration: Calibration) -> Calibration:
@@ -443,13 +497,22 @@ def reconstruct(
     keep = epipolar_keep_mask(xy_norm, cal, params.epipolar_threshold_px)
     weights = np.where(keep, weights, 0.0)
     p2ds = np.where(keep[..., None], p2ds, np.nan)
-    res = triangulate(
-        p2ds, cal, weights,
-        max_residual_px=params.max_residual_px,
-        refine=params.refine and params.refine_iterations > 0,
-        iterations=params.refine_iterations,
-        min_views=params.min_views,
-    )
+    def triangulate_views(w: np.ndarray):
+        return triangulate(
+            p2ds, cal, w,
+            max_residual_px=params.max_residual_px,
+            refine=params.refine and params.refine_iterations > 0,
+            iterations=params.refine_iterations,
+            min_views=params.min_views,
+        )
+
+    res = triangulate_views(weights)
+    if params.crowd_px > 0 and params.crowded_weight < 1:
+        # Views whose blob shares light with a neighbour's, found from the first points,
+        # count less in a second triangulation.
+        crowded = crowded_views(p2ds.reshape(C, F, M, 2), res.points.reshape(F, M, 3), cal, params.crowd_px)
+        if crowded.any():
+            res = triangulate_views(np.where(crowded.reshape(C, F * M), params.crowded_weight * weights, weights))
     xyz = res.points.reshape(F, M, 3)
     residual = res.residual_px.reshape(F, M)
     n_views = res.n_views.reshape(F, M).astype(np.int16)
