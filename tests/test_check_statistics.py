@@ -170,3 +170,27 @@ def test_calibration_rates_on_runs_with_known_effects(baseline, monkeypatch):
     assert next(r for r in res.rows if r.name == "noise").flagged.most_common(1)[0][0].endswith("markers.rmse_mm")
     lo, hi = res.rows[1].interval()
     assert lo > 0.85 and hi == 1.0
+
+
+def test_the_shipped_injections_are_the_issues_four_and_change_the_ci_suite_as_named():
+    """Issue 13's injected regressions, applied to the ci suite's resolved scenarios: the tracker one is
+    kalman -> alpha_beta, and the suite holds a scenario where the 2D trackers label a subject that has
+    finished blending out of the T-pose (before that, every tracker keeps every label)."""
+    from simbench.scenes.motions import T_POSE_BLEND_S, T_POSE_HOLD_S
+
+    assert [i.name for i in cal.INJECTIONS] == ["2D detection noise +0.2 px", "exposure 4 -> 12 ms",
+                                                "tracker kalman -> alpha_beta", "one camera fewer"]
+    noise, exposure, tracker, camera = cal.INJECTIONS
+    assert noise.detection_noise_px == 0.2
+    runs = rg.load_suites("scenarios/suites.toml").runs("ci")
+    for r in runs:
+        sc = r.scenario
+        assert tracker.overrides(sc) == ({"markers_pipeline.tracker": "alpha_beta"} if sc.markers_pipeline.tracker == "kalman"
+                                         else {})
+        assert exposure.overrides(sc) == ({"sensor.exposure_ms": 12.0} if sc.sensor.exposure_ms == 4.0 else {})
+        assert camera.overrides(sc) == {"rig.count": sc.rig.count - 1}
+        changed = sc.with_overrides(tracker.overrides(sc))
+        assert changed.markers_pipeline.tracker in ("alpha_beta", sc.markers_pipeline.tracker)
+    tracked = [r.scenario for r in runs if (r.scenario.markers_pipeline.labelling == "tracker" or r.scenario.rig.count < 3)
+               and r.scenario.markers_pipeline.tracker == "kalman" and r.scenario.duration_s > T_POSE_HOLD_S + T_POSE_BLEND_S]
+    assert tracked, "no ci scenario where the 2D tracker labels a subject in full motion"

@@ -22,9 +22,9 @@ def test_ci_suite_passes_on_the_committed_baseline(tmp_path):
     r = _check(tmp_path)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "PASS suite ci" in r.stdout and "0 regressed" in r.stdout
-    assert "3 scenarios (8 seeds each against 32 baseline seeds)" in r.stdout
+    assert "4 scenarios (8 seeds each against 32 baseline seeds)" in r.stdout
     suite = ET.parse(tmp_path / "junit.xml").getroot().find("testsuite")
-    assert suite.get("failures") == "0" and suite.get("errors") == "0" and int(suite.get("tests")) >= 3 * 8
+    assert suite.get("failures") == "0" and suite.get("errors") == "0" and int(suite.get("tests")) >= 4 * 8
 
 
 def test_check_fails_with_a_table_when_a_scenario_gets_worse(tmp_path):

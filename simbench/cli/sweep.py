@@ -123,7 +123,7 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
 
     A metric regressed when a one-sided Mann-Whitney U test (Holm-corrected over the whole check, at the suite's `alpha`, 1 % for ci) finds the current seeds worse than the baseline's and the median moved beyond the metric's tolerance; with one seed per side, the tolerance alone (as before ensembles). A scenario that cannot run (its file is missing or has a bad field, or the run raises) is one row "error: <cause>"; the others still run.
 
-    --calibrate measures the gate: the unchanged code and four injected regressions (2D detection noise +0.2 px, exposure 4 -> 12 ms, tracker kalman -> condensation, one camera fewer) on pools of fresh seeds; prints the false-alarm and detection rates.
+    --calibrate measures the gate: the unchanged code and four injected regressions (2D detection noise +0.2 px, exposure 4 -> 12 ms, tracker kalman -> alpha_beta, one camera fewer) on pools of fresh seeds; prints the false-alarm and detection rates.
 
     Exit codes: 0 every metric within tolerance; 1 a metric regressed, is missing, or has no tolerance; 2 a bad command line, suites file or baseline (one line, nothing run); 3 a scenario could not run (whether or not others regressed).
     """
