@@ -18,8 +18,11 @@ before and after exist, linear otherwise). :func:`resample_detections` then give
 detections at the reference camera's frame instants, which the marker pipeline triangulates
 as synchronised frames (:func:`mocap.marker_pipeline.capture_unsynchronised`).
 
-A frame whose blobs repeat the previous frame's exactly (a webcam's duplicated frame) is
-not used.
+A frame whose blobs repeat the previous frame's exactly (a webcam's duplicated frame,
+:func:`duplicated_frames`) is not used: its image is the previous instant's, its timestamp a
+later one. :func:`resample_detections` replaces such a frame of the reference camera, whose
+instants are the output's, by its blobs interpolated to the frame's timestamp, as it does for
+every frame of the other cameras.
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ from mocap.calibration import Calibration
 from mocap.errors import InputFileError, MocapInputError
 from mocap.types import Detections
 
-__all__ = ["SyncParams", "ClockSync", "LinkedDetections", "estimate_sync", "resample_detections", "read_timestamps_csv"]
+__all__ = ["SyncParams", "ClockSync", "LinkedDetections", "duplicated_frames", "estimate_sync", "resample_detections",
+           "read_timestamps_csv"]
 
 
 @dataclass(frozen=True)
@@ -105,6 +109,18 @@ def _check_timestamps(detections: list[list[Detections]], timestamps: list[np.nd
     return out
 
 
+def duplicated_frames(detections: list[Detections]) -> np.ndarray:
+    """``(F,)`` bool: the frame's blobs repeat the previous frame's exactly (same count, same
+    centroids, bit for bit), as a webcam's duplicated frame does (the same image again under a
+    later timestamp). Real blobs of a new exposure never repeat to the last bit: sensor noise
+    moves every centroid. A frame without blobs is never a duplicate."""
+    dup = np.zeros(len(detections), bool)
+    for k in range(1, len(detections)):
+        a, b = detections[k], detections[k - 1]
+        dup[k] = bool(len(a)) and len(a) == len(b) and np.array_equal(a.xy, b.xy)
+    return dup
+
+
 class LinkedDetections:
     """One camera's blobs linked frame to frame, interpolated at any instant of its clock.
 
@@ -114,9 +130,7 @@ class LinkedDetections:
 
     def __init__(self, detections: list[Detections], times: np.ndarray, gate_px: float,
                  undistort=None) -> None:
-        keep = [0] + [k for k in range(1, len(detections))
-                      if not (len(detections[k]) == len(detections[k - 1]) and len(detections[k])
-                              and np.array_equal(detections[k].xy, detections[k - 1].xy))]
+        keep = np.flatnonzero(~duplicated_frames(detections))
         dets = [detections[k] for k in keep]  # duplicated frames are not used
         self.times = np.asarray(times, float)[keep]
         F = len(dets)
@@ -137,10 +151,12 @@ class LinkedDetections:
             if not len(ia) or not len(ib):
                 continue
             # A blob linked from the frame before is expected where its velocity takes it (a fast
-            # hand moves tens of pixels a frame); the others where they are, within the gate.
+            # hand moves tens of pixels a frame; over the frames' own intervals, which a skipped
+            # duplicate doubles); the others where they are, within the gate.
             pa = self.prv[k, ia]
             back = np.where((pa >= 0)[:, None], self.xy[max(k - 1, 0), np.maximum(pa, 0)], a[ia])
-            pred = 2.0 * a[ia] - back
+            ratio = (self.times[k + 1] - self.times[k]) / (self.times[k] - self.times[k - 1]) if k > 0 else 1.0
+            pred = a[ia] + ratio * (a[ia] - back)
             d = np.linalg.norm(pred[:, None] - b[None, ib], axis=2)
             gate = np.where(pa >= 0, 0.4 * gate_px, gate_px)[:, None]
             r, c = linear_sum_assignment(np.where(d <= gate, d, 10.0 * gate_px + d))
@@ -164,15 +180,25 @@ class LinkedDetections:
         p1 = self.xy[j]                                                     # (Q, N, 2)
         p2 = np.where((nx >= 0)[..., None], self.xy[rows + 1, np.maximum(nx, 0)], np.nan)
         out = (1.0 - u)[..., None] * p1 + u[..., None] * p2
-        # Catmull-Rom where the blob is linked one frame before and one after (uniform spacing assumed
-        # locally: the frame intervals of a webcam differ by its jitter only).
+        # A cubic Hermite where the blob is linked one frame before and one after, its tangents those
+        # of the parabolas through three consecutive frames at their own instants (Catmull-Rom when
+        # the frames are evenly spaced; exact for a parabola when they are not: jitter, a skipped
+        # duplicate).
         pv = self.prv[j]
         p0 = np.where((pv >= 0)[..., None], self.xy[np.maximum(rows - 1, 0), np.maximum(pv, 0)], np.nan)
         j2 = np.minimum(j + 2, F - 1)[:, None]
         nn = np.where(nx >= 0, self.nxt[np.minimum(j + 1, F - 1)[:, None], np.maximum(nx, 0)], -1)
         p3 = np.where(((nn >= 0) & (j2 == rows + 2))[..., None], self.xy[j2, np.maximum(nn, 0)], np.nan)
+        T = self.times
+        h0 = (T[j] - T[np.maximum(j - 1, 0)])[:, None, None]
+        h1 = (T[j + 1] - T[j])[:, None, None]
+        h2 = (T[np.minimum(j + 2, F - 1)] - T[j + 1])[:, None, None]
+        with np.errstate(invalid="ignore", divide="ignore"):  # h0 or h2 of 0 at the take's ends: p0/p3 NaN there
+            m1 = ((p1 - p0) / h0 * h1 + (p2 - p1) / h1 * h0) / (h0 + h1) * h1   # tangents, per unit of u
+            m2 = ((p2 - p1) / h1 * h2 + (p3 - p2) / h2 * h1) / (h1 + h2) * h1
         uu = u[..., None]
-        cr = 0.5 * ((2 * p1) + (-p0 + p2) * uu + (2 * p0 - 5 * p1 + 4 * p2 - p3) * uu**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * uu**3)
+        cr = ((2 * uu**3 - 3 * uu**2 + 1) * p1 + (uu**3 - 2 * uu**2 + uu) * m1
+              + (-2 * uu**3 + 3 * uu**2) * p2 + (uu**3 - uu**2) * m2)
         full = np.isfinite(cr).all(axis=2, keepdims=True)
         out = np.where(full, cr, out)
         out[~inside] = np.nan
@@ -335,9 +361,11 @@ def resample_detections(detections: list[list[Detections]], timestamps: list[np.
                         gate_px: float = SyncParams.link_gate_px) -> list[list[Detections]]:
     """Every camera's detections at the reference camera's frame instants (``F_ref`` frames each).
 
-    The reference camera's detections are returned as they are; another camera's are its
-    blobs interpolated along their frame-to-frame links (:class:`LinkedDetections`) to the
-    reference instants mapped onto its clock; a blob not linked across an instant, or an
+    The reference camera's detections are returned as they are, but for its duplicated frames
+    (:func:`duplicated_frames`: the previous instant's image under a later timestamp), whose
+    blobs are interpolated to their timestamps between the frames around them. Another camera's
+    are its blobs interpolated along their frame-to-frame links (:class:`LinkedDetections`) to
+    the reference instants mapped onto its clock; a blob not linked across an instant, or an
     instant outside the camera's take, gives no detection.
     """
     times = _check_timestamps(detections, timestamps)
@@ -345,7 +373,14 @@ def resample_detections(detections: list[list[Detections]], timestamps: list[np.
     out: list[list[Detections]] = []
     for c, (d, t) in enumerate(zip(detections, times)):
         if c == sync.reference:
-            out.append(list(d))
+            cam = list(d)
+            dup = np.flatnonzero(duplicated_frames(d))
+            if len(dup):
+                xy, area, inten = LinkedDetections(d, t, gate_px).at(t[dup])
+                for i, k in enumerate(dup):
+                    ok = np.isfinite(xy[i, :, 0])
+                    cam[k] = Detections(xy[i, ok], area[i, ok], inten[i, ok])
+            out.append(cam)
             continue
         xy, area, inten = LinkedDetections(d, t, gate_px).at(sync.to_camera_clock(c, s_ref))
         cam = []

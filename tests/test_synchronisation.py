@@ -159,3 +159,31 @@ def test_timestamps_files_are_read_or_refused_naming_the_file(tmp_path):
         with pytest.raises(InputFileError) as err:
             read_timestamps_csv(p)
         assert str(p) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_duplicated_reference_frame_is_resampled_to_its_timestamp():
+    """Camera 0 repeats frames 30 and 61-62 (the previous image under later timestamps): the
+    output at those timestamps has camera 0's blobs where the markers were then, not where
+    the repeated image shows them (a frame earlier, a few pixels away)."""
+    offsets = np.array([0.0, 0.2, -0.15])
+    rates = np.ones(3)
+    cal, xyz, dets, times = _take(5, 3.0, offsets, rates, noise_px=0.0)
+    dup = [30, 61, 62]
+    for k in dup:
+        dets[0][k] = dets[0][k - 1]
+    out = resample_detections(dets, times, ClockSync(0, offsets, np.zeros(3)))
+    moved = []
+    for k in range(len(times[0])):
+        uv = cal[0].project(xyz(times[0][k : k + 1])[0])
+        uv = uv[cal[0].in_image(uv)]
+        got = out[0][k].xy
+        if k in dup:
+            stale = np.linalg.norm(dets[0][k].xy[:, None] - uv[None], axis=2).min(axis=1)
+            moved.append(np.median(stale))
+            assert len(got) > 0.9 * len(uv)
+            err = np.linalg.norm(got[:, None] - uv[None], axis=2).min(axis=1)
+            assert np.median(err) < 0.1 * np.median(stale), (k, np.median(err), np.median(stale))
+            assert np.percentile(err, 90) < 0.5
+        else:
+            assert got is dets[0][k].xy or np.array_equal(got, dets[0][k].xy)  # other frames as they were
+    assert min(moved) > 1.0  # the markers really moved between the frames: the test can fail

@@ -254,12 +254,26 @@ class _Run:
     def _gt_at_reference_instants(self) -> GroundTruth:
         """The ground truth the synchronised capture is scored against: with unsynchronised
         cameras the pipeline's 2D tracks are at camera 0's instants (it resampled every camera
-        there), so their truth is the markers projected at those instants."""
+        there), so their truth is the markers projected at those instants. A duplicated frame of
+        camera 0 shows the previous instant under a later timestamp; the pipeline puts its output
+        at the timestamp (:func:`mocap.synchronisation.resample_detections`), so its truth is the
+        instant the timestamp stands for on camera 0's clock, not the repeated image's."""
         if not self._unsynchronised():
             return self.gt
-        F, M = self.gt.markers_3d.shape[:2]
-        m2d = self.gt.calibration().project(self.gt.markers_3d.reshape(-1, 3)).reshape(-1, F, M, 2).transpose(1, 0, 2, 3)
-        return dataclasses.replace(self.gt, markers_2d=m2d)
+        gt = self.gt
+        F, M = gt.markers_3d.shape[:2]
+        dup = np.zeros(F, bool)
+        dup[1:] = gt.camera_times[1:, 0] == gt.camera_times[:-1, 0]
+        fix = {}
+        if dup.any():
+            st = self.stage.states(gt.clock_offset_s[0] + gt.clock_rate[0] * gt.camera_timestamps[dup, 0])
+            for name, value in (("markers_3d", st.marker_xpos), ("joint_centres", st.joint_centres),
+                                ("qpos", st.qpos[:, : gt.qpos.shape[1]])):
+                fix[name] = getattr(gt, name).copy()
+                fix[name][dup] = value
+        m3d = fix.get("markers_3d", gt.markers_3d)
+        m2d = gt.calibration().project(m3d.reshape(-1, 3)).reshape(-1, F, M, 2).transpose(1, 0, 2, 3)
+        return dataclasses.replace(gt, markers_2d=m2d, **fix)
 
     def _naive_pairing(self, params: MarkerPipelineParams) -> None:
         """The pipeline as if the cameras were synchronised (frame ``k`` of every camera together,
