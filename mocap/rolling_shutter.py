@@ -17,11 +17,12 @@ seen, and the rest of the pipeline runs on them as it is.
 
 Links between blobs fail where markers cross or merge (the hand's markers on a fast sweep),
 and a wrong link moves a blob by pixels. :func:`capture_rolling_shutter` therefore runs the
-pipeline twice: the first pass on the link-corrected blobs gives labelled 3D trajectories,
-and :func:`refine_with_trajectories` moves every raw blob near a reconstructed marker by the
-marker's own motion between its row's instant and the timestamp (from the trajectory's
-velocity and acceleration, projected), which does not depend on 2D links; the second pass
-runs on those. The readout is a property of the camera model (its datasheet, or measured once
+pipeline three times: the first pass on the link-corrected blobs gives labelled 3D
+trajectories, and :func:`refine_with_trajectories` moves every raw blob near a reconstructed
+marker by the marker's own motion between its row's instant and the timestamp (the cubic
+through the marker's positions at the four frames around that interval, projected), which
+does not depend on 2D links; the second pass runs on those, and its trajectories, better at
+the fast reversals, refine the raw blobs once more for the third. The readout is a property of the camera model (its datasheet, or measured once
 by filming a flashing LED); without the correction (``mocap markers`` without
 ``--readout-ms``) the blobs are triangulated as if every row were exposed at the timestamp.
 """
@@ -35,7 +36,7 @@ import numpy as np
 from mocap.calibration import Calibration
 from mocap.errors import MocapInputError
 from mocap.marker_pipeline import MarkerCapture, MarkerPipelineParams, capture_from_detections
-from mocap.synchronisation import LinkedDetections, SyncParams
+from mocap.synchronisation import LinkedDetections, SyncParams, duplicated_frames
 from mocap.types import Detections, Trajectories
 
 __all__ = ["detection_times", "correct_rolling_shutter", "refine_with_trajectories", "capture_rolling_shutter"]
@@ -50,10 +51,8 @@ def detection_times(detections: Detections, frame_time_s: float, readout_s: floa
 def _kept_frames(detections: list[Detections]) -> list[int]:
     """Index of the frame each frame's blobs come from: a frame repeating the previous one exactly
     (a duplicated webcam frame) maps to the earlier one (as :class:`LinkedDetections` skips it)."""
-    src = []
-    for k, d in enumerate(detections):
-        dup = (k > 0 and len(d) == len(detections[k - 1]) and len(d)
-               and np.array_equal(d.xy, detections[k - 1].xy))
+    src: list[int] = []
+    for k, dup in enumerate(duplicated_frames(detections)):
         src.append(src[-1] if dup else k)
     return src
 
@@ -145,14 +144,15 @@ def correct_rolling_shutter(detections: list[list[Detections]], frame_times: lis
 
 def refine_with_trajectories(raw: list[list[Detections]], first: list[list[Detections]], frame_times: np.ndarray,
                              readout_s: float, calibration: Calibration, trajectories: Trajectories,
-                             gate_px: float = 6.0, reach: int = 3) -> list[list[Detections]]:
+                             gate_px: float = 6.0, reach: int = 3, degree: int = 3) -> list[list[Detections]]:
     """The raw blobs moved to the timestamps by the reconstructed markers' motion.
 
     For each camera and frame, every marker of ``trajectories`` (at the frames' timestamps
     ``frame_times``, the same for every camera) is placed where the row-time model shows it:
-    ``uv = project(X(t + v / H * readout))``, ``X`` continued from the frame along the parabola
-    through the marker's three nearest measured frames within ``reach`` frames
-    (:func:`_local_parabolas`). A raw blob within ``gate_px`` of such a point is moved by that
+    ``uv = project(X(t + v / H * readout))``, ``X`` continued from the frame along the polynomial
+    of ``degree`` through the marker's ``degree + 1`` measured frames within ``reach`` frames
+    nearest to the interval after the frame (:func:`_local_polynomials`: for the default cubic,
+    frames ``k - 1 .. k + 2``, so the row's instant lies in its middle interval). A raw blob within ``gate_px`` of such a point is moved by that
     marker's ``project(X(t)) - uv``: first to the markers measured in that frame, then the
     blobs left to markers missing there but measured around it. Other blobs keep their
     position in ``first`` (the link-interpolated correction)."""
@@ -161,7 +161,8 @@ def refine_with_trajectories(raw: list[list[Detections]], first: list[list[Detec
     F, M = X.shape[:2]
     if F < 3:
         return [list(cam) for cam in first]
-    P, V, A = _local_parabolas(X, t, reach)
+    coef = _local_polynomials(X, t, reach, degree)                 # (F, M, degree + 1, 3)
+    P = coef[:, :, 0]
     measured = np.isfinite(X).all(axis=2)
     out = []
     for c, cam in enumerate(calibration):
@@ -170,7 +171,8 @@ def refine_with_trajectories(raw: list[list[Detections]], first: list[list[Detec
         uv = uv_t.copy()
         for _ in range(3):
             d = (np.nan_to_num(uv[..., 1], nan=0.0) / H * readout_s)[..., None]
-            uv = cam.project((P + d * V + 0.5 * d**2 * A).reshape(-1, 3)).reshape(F, M, 2)
+            Xd = sum(coef[:, :, i] * d**i for i in range(coef.shape[2]))
+            uv = cam.project(Xd.reshape(-1, 3)).reshape(F, M, 2)
         shift = uv_t - uv                                            # (F, M, 2)
         ok = np.isfinite(shift).all(axis=2) & np.isfinite(uv).all(axis=2)
         frames = []
@@ -195,42 +197,43 @@ def refine_with_trajectories(raw: list[list[Detections]], first: list[list[Detec
     return out
 
 
-def _local_parabolas(X: np.ndarray, t: np.ndarray, reach: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Position, velocity and acceleration ``(F, M, 3)`` of trajectories ``X (F, M, 3)`` (NaN in
-    gaps) at the times ``t (F,)``: of the parabola through each marker's three measured frames
-    nearest to the frame within ``reach`` frames (the frame itself when measured); NaN where
-    there are not three."""
+def _local_polynomials(X: np.ndarray, t: np.ndarray, reach: int, degree: int) -> np.ndarray:
+    """Coefficients ``(F, M, degree + 1, 3)`` of each marker's motion around frame ``k`` as a
+    polynomial in ``t - t[k]``: through the ``degree + 1`` measured frames within ``reach`` frames
+    nearest to the interval ``[t[k], t[k + 1]]`` (a rolling shutter's rows are exposed in it:
+    for a cubic, frames ``k - 1 .. k + 2`` when all are measured), NaN where there are not enough."""
     F, M = X.shape[:2]
-    P = np.full_like(X, np.nan)
-    V = np.full_like(X, np.nan)
-    A = np.full_like(X, np.nan)
-    measured = np.isfinite(X).all(axis=2)                            # (F, M)
-    offsets = np.array(sorted(range(-reach, reach + 1), key=lambda o: (abs(o), o)))
+    n = degree + 1
+    coef = np.full((F, M, n, 3), np.nan)
+    measured = np.isfinite(X).all(axis=2)
+    offsets = np.array(sorted(range(-reach, reach + 2), key=lambda o: (abs(o - 0.5), -o if degree % 2 else o)))
     for k in range(F):
         js = k + offsets
         js = js[(js >= 0) & (js < F)]
-        avail = measured[js]                                          # (J, M)
-        rank = np.cumsum(avail, axis=0)
-        pick = avail & (rank <= 3)                                    # the three nearest measured
-        enough = pick.sum(axis=0) == 3
-        for m in np.flatnonzero(enough):
-            j = js[pick[:, m]]
+        avail = measured[js]
+        pick = avail & (np.cumsum(avail, axis=0) <= n)
+        for m in np.flatnonzero(pick.sum(axis=0) == n):
+            j = np.sort(js[pick[:, m]])
             ts = t[j] - t[k]
-            ys = X[j, m]                                             # (3, 3)
-            # Newton's divided differences of the parabola through (ts, ys), at 0
-            d01 = (ys[1] - ys[0]) / (ts[1] - ts[0])
-            d12 = (ys[2] - ys[1]) / (ts[2] - ts[1])
-            d012 = (d12 - d01) / (ts[2] - ts[0])
-            P[k, m] = ys[0] + d01 * (0 - ts[0]) + d012 * (0 - ts[0]) * (0 - ts[1])
-            V[k, m] = d01 + d012 * ((0 - ts[0]) + (0 - ts[1]))
-            A[k, m] = 2 * d012
-    return P, V, A
+            # Newton's divided differences, then the monomial coefficients in (t - t[k])
+            dd = X[j, m].copy()                                      # (n, 3)
+            for lvl in range(1, n):
+                dd[lvl:] = (dd[lvl:] - dd[lvl - 1:-1]) / (ts[lvl:] - ts[:-lvl])[:, None]
+            poly = np.zeros((n, 3))
+            basis = np.zeros(n)
+            basis[0] = 1.0                                           # prod (x - ts[i]) so far, as coefficients
+            for lvl in range(n):
+                poly += basis[:, None] * dd[lvl]
+                if lvl < n - 1:
+                    basis = np.concatenate([[0.0], basis[:-1]]) - ts[lvl] * basis
+            coef[k, m] = poly
+    return coef
 
 
 def capture_rolling_shutter(detections: list[list[Detections]], times: np.ndarray, readout_s: float,
                             calibration: Calibration, template, params: MarkerPipelineParams | None = None,
                             rng: np.random.Generator | None = None, subject=None, detection_ms: float = 0.0,
-                            marker_model=None, refinements: int = 1) -> MarkerCapture:
+                            marker_model=None, refinements: int = 2) -> MarkerCapture:
     """The marker pipeline on rolling-shutter cameras exposing their rows over ``readout_s``
     from the frame timestamps ``times (F,)`` (the same for every camera): blobs moved to the
     timestamps along their 2D links (:func:`correct_rolling_shutter`), a first capture, the raw
