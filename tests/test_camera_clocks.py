@@ -108,3 +108,32 @@ def test_unsynchronised_take_is_synchronised_from_the_markers():
     # labelling swaps a toe marker there on this take)
     assert m["markers.p95_error_mm"] < 3.0
     assert m["markers.rmse_naive_mm"] > 20 * m["markers.p95_error_mm"]
+
+
+def test_a_duplicated_frame_of_camera_0_is_scored_at_its_timestamps_instant():
+    """The pipeline's frames are at camera 0's timestamps; where camera 0 repeats a frame, the
+    truth it is scored against is the markers at the instant that timestamp stands for, not at
+    the repeated image's (the previous frame's) instant. No render: the ground truth of the
+    frames' instants alone."""
+    from simbench.pipelines.run import _Run
+    from simbench.stage.rendering import FrameRecord, _ground_truth
+
+    sc = load_scenario("scenarios/webcams_unsynced.toml", overrides={
+        "duration_s": 2.0, "sensor.clock.duplicate_probability": 0.1})
+    stage = build_stage(sc)
+    clocks = stage.clocks()
+    F, C, M = clocks.true_times_s.shape[0], len(stage.cameras), len(stage.marker_names)
+    records = [FrameRecord(float(clocks.true_times_s[k, 0]), np.ones((C, M)), 1) for k in range(F)]
+    gt = _ground_truth(stage, records, None, clocks)
+    run = _Run.__new__(_Run)
+    run.gt, run.stage = gt, stage
+    scored = run._gt_at_reference_instants()
+    dup = np.flatnonzero(clocks.duplicated[:, 0])
+    assert len(dup) >= 3
+    at_stamps = stage.states(clocks.offset_s[0] + clocks.rate[0] * clocks.timestamps_s[:, 0]).marker_xpos
+    assert np.allclose(scored.markers_3d, at_stamps, atol=1e-9)
+    # the repeated image's instant is a frame earlier: the markers there are elsewhere
+    assert np.abs(gt.markers_3d[dup] - at_stamps[dup]).max() > 0.01
+    assert np.array_equal(scored.markers_3d[~clocks.duplicated[:, 0]], gt.markers_3d[~clocks.duplicated[:, 0]])
+    proj = gt.calibration()[2].project(at_stamps[dup[0]])
+    assert np.allclose(scored.markers_2d[dup[0], 2], proj, atol=1e-6)
