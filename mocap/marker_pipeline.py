@@ -133,102 +133,156 @@ def capture_from_detections(
     C = len(calibration)
     if len(detections) != C:
         raise MocapInputError(f"got detections of {len(detections)} cameras for a calibration of {C} ({calibration.names})")
-    F = len(times)
     timings = {"detection": detection_ms}
     if params.labelling not in ("model", "tracker"):
         raise MocapInputError(f"labelling={params.labelling!r}: use 'model' or 'tracker'")
+    use_model, tracks, init = _labelled_tracks(detections, calibration, template, times, params, rng, subject,
+                                               marker_model, timings)
+    t0 = time.perf_counter()
+    passes = _first_reconstruction(tracks, detections, calibration, times, params, use_model)
+    if params.reassociation is not None:
+        # 3D-guided correspondence: reproject, re-associate detections, reconstruct again.
+        for _ in range(params.reassociation_passes):
+            passes.run()
+    timings["reconstruction"] = (time.perf_counter() - t0) * 1e3
+    fit = None
+    if params.solve_skeleton and subject is not None:
+        t0 = time.perf_counter()
+        fit = _solve_skeleton(passes, subject, params)
+        timings["skeleton"] = (time.perf_counter() - t0) * 1e3
+    stats = passes.stats
+    stats["swaps_repaired"] = sum(1 for e in passes.swaps if e[0] == "swap")
+    stats["jump_samples_removed"] = sum(1 for e in passes.swaps if e[0] == "jump")
+    tracks = Tracks2D(tracks.labels, passes.measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
+    return MarkerCapture(detections, init, tracks, passes.traj, fit, timings, stats)
+
+
+def _labelled_tracks(detections: list[list[Detections]], calibration: Calibration, template: LabelTemplate,
+                     times: np.ndarray, params: MarkerPipelineParams, rng: np.random.Generator, subject,
+                     marker_model: ClusterMarkerModel | None, timings: dict[str, float]) -> tuple[bool, Tracks2D, LabelInit]:
+    """``(use_model, tracks, init)``: labels from the subject's model where it can run, else
+    seed 000's T-pose first frame kept by 2D trackers (stage times into ``timings``)."""
     # Two cameras cannot confirm a pairing (every two-view point fits its epipolar line), so the
     # model path needs three or more; two-camera rigs use seed 000's scheme.
-    labelled = None
-    if params.labelling == "model" and (subject is not None or marker_model is not None) and C >= 3:
+    if params.labelling == "model" and (subject is not None or marker_model is not None) and len(calibration) >= 3:
         labelled = _label_with_model(detections, calibration, template, params, subject, marker_model, timings)
-    use_model = labelled is not None
-    if use_model:
-        tracks, init = labelled
-    else:
-        t0 = time.perf_counter()
-        init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
-        timings["label_init"] = (time.perf_counter() - t0) * 1e3
-        t0 = time.perf_counter()
-        dt = float(np.median(np.diff(times))) if F > 1 else 1 / 30
-        tracks = track_cameras(detections, init.xy, list(template.names), calibration.names, tracker=params.tracker,
-                               dt=dt, rng=rng, **params.tracker_params)
-        timings["tracking"] = (time.perf_counter() - t0) * 1e3
+        if labelled is not None:
+            tracks, init = labelled
+            return True, tracks, init
     t0 = time.perf_counter()
+    init = initial_labels([d[0] for d in detections], calibration, template, params.label_init)
+    timings["label_init"] = (time.perf_counter() - t0) * 1e3
+    t0 = time.perf_counter()
+    F = len(times)
+    dt = float(np.median(np.diff(times))) if F > 1 else 1 / 30
+    tracks = track_cameras(detections, init.xy, list(template.names), calibration.names, tracker=params.tracker,
+                           dt=dt, rng=rng, **params.tracker_params)
+    timings["tracking"] = (time.perf_counter() - t0) * 1e3
+    return False, tracks, init
+
+
+@dataclass
+class _Passes:
+    """The state the reassociate -> reconstruct -> repair passes hand on: the measurements
+    (``measured``), the trajectories triangulated from them, the repaired swaps and jumps
+    (``swaps``) and the re-association counts (``stats``)."""
+
+    detections: list[list[Detections]]
+    calibration: Calibration
+    times: np.ndarray
+    reconstruction: ReconstructionParams
+    reassociation: ReassociationParams | None
+    swap_repair: SwapRepairParams | None
+    measured: Tracks2D
+    traj: Trajectories
+    swaps: list = field(default_factory=list)
+    stats: dict[str, int] = field(default_factory=dict)
+
+    def add_stats(self, stats: dict[str, int], prefix: str = "") -> None:
+        for k, v in stats.items():
+            self.stats[prefix + k] = self.stats.get(prefix + k, 0) + v
+
+    def repair(self, jumps: bool = True) -> None:
+        """Undo label swaps (and, with ``jumps``, drop label jumps) in ``traj`` and ``measured``."""
+        self.traj, self.measured = _repair_swaps(self.traj, self.measured, self.swap_repair, self.swaps, jumps=jumps)
+
+    def run(self, points: np.ndarray | None = None, gate_px: np.ndarray | None = None, prefix: str = "",
+            jumps: bool = True) -> None:
+        """One pass: re-associate the detections with the 3D points (the trajectories, or
+        ``points`` within ``gate_px``), reconstruct from them, repair swaps."""
+        self.measured, stats = reassociate(self.measured, self.detections, self.traj, self.calibration,
+                                           self.reassociation, points=points, gate_px=gate_px)
+        self.add_stats(stats, prefix)
+        self.traj = reconstruct(self.measured, self.calibration, self.reconstruction, times=self.times)
+        self.repair(jumps)
+
+
+def _first_reconstruction(tracks: Tracks2D, detections: list[list[Detections]], calibration: Calibration,
+                          times: np.ndarray, params: MarkerPipelineParams, use_model: bool) -> _Passes:
+    """Triangulate the labelled tracks once and repair swaps: the passes' starting state."""
     # Labels from the model are already consistent across cameras: no cross-camera re-labelling
     # (it exists to mend 2D trackers' label mistakes).
     first = dataclasses.replace(params.reconstruction, relabel_gate_px=0) if use_model else params.reconstruction
     traj = reconstruct(tracks, calibration, first, times=np.asarray(times, float), detections=None if use_model else detections)
-    reassoc_stats: dict[str, int] = {}
-
-    def add_stats(stats: dict[str, int]) -> None:
-        for k, v in stats.items():
-            reassoc_stats[k] = reassoc_stats.get(k, 0) + v
-
-    measured = tracks
-    swaps: list = []
-    # Swap and jump repair undo what 2D trackers do to labels; labels from the model cannot swap
-    # (one point per label, checked against the model every frame), and on real motion the
-    # repair's motion-continuity test removed good samples (bvh_walk: 0.994 -> 0.980 reconstructed).
-    swap_params = None if use_model else params.swap_repair
-    traj, measured = _repair_swaps(traj, measured, swap_params, swaps)
     # The first reconstruction re-labels views across cameras and re-acquires lost
     # labels from the raw detections; later ones triangulate exactly the measurements
     # the re-association kept (it may drop partly hidden blobs on purpose).
     later = dataclasses.replace(params.reconstruction, relabel_gate_px=0)
-    if params.reassociation is not None:
-        # 3D-guided correspondence: reproject, re-associate detections, reconstruct again.
-        for _ in range(params.reassociation_passes):
-            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
-            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
-            traj, measured = _repair_swaps(traj, measured, swap_params, swaps)
-            add_stats(stats)
-    timings["reconstruction"] = (time.perf_counter() - t0) * 1e3
-    fit = None
-    if params.solve_skeleton and subject is not None:
-        from mocap.skeleton import SkeletonSolver
+    # Swap and jump repair undo what 2D trackers do to labels; labels from the model cannot swap
+    # (one point per label, checked against the model every frame), and on real motion the
+    # repair's motion-continuity test removed good samples (bvh_walk: 0.994 -> 0.980 reconstructed).
+    swap_params = None if use_model else params.swap_repair
+    passes = _Passes(detections, calibration, np.asarray(times, float), later, params.reassociation, swap_params,
+                     tracks, traj)
+    passes.repair()
+    return passes
 
-        t0 = time.perf_counter()
-        solver = SkeletonSolver(subject)
-        fit = solver.solve(traj)
-        if params.reassociation is not None and params.model_guided:
-            # Model-guided labelling: the fitted skeleton predicts every marker, also
-            # those the cameras' trackers lost; markers that disagree with the fit by
-            # more than ``model_outlier_mm`` are left out of a second fit first.
-            traj_in = _drop_outliers(traj, fit, params.model_outlier_mm)
-            fit = solver.solve(traj_in)
-            predicted = _model_markers(solver, fit, traj.labels)
-            gate = np.full(predicted.shape[:2], params.model_gate_px)
-            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation,
-                                          points=predicted, gate_px=gate)
-            add_stats({f"model_{k}": v for k, v in stats.items()})
-            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
-            traj, measured = _repair_swaps(traj, measured, swap_params, swaps, jumps=False)
-            measured, stats = reassociate(measured, detections, traj, calibration, params.reassociation)
-            add_stats(stats)
-            traj = reconstruct(measured, calibration, later, times=np.asarray(times, float))
-            traj, measured = _repair_swaps(traj, measured, swap_params, swaps, jumps=False)
-            fit = solver.solve(traj)
-            for _ in range(2):  # a wrong point pulls the fit towards it: drop, refit, drop again
-                fit = solver.solve(_drop_outliers(traj, fit, params.model_outlier_mm))
-            # Points still off the fitted skeleton by more than model_outlier_mm are
-            # mislabelled or ghosts: remove them. Gaps are then filled from the skeleton
-            # fitted to the measured points only: in fast motion a spline across a gap
-            # is centimetres off, the model driven by the segment's other markers is not.
-            traj = _drop_outliers(traj, fit, params.model_outlier_mm)
-            measured_only = Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
-                                         traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
-            fit = solver.solve(measured_only)
-            body_of = {m.name: m.body for m in subject.markers}
-            traj = _fill_from_model(measured_only, _model_markers(solver, fit, traj.labels),
-                                    params.reconstruction, [body_of.get(n, "") for n in traj.labels],
-                                    _constrained(solver, fit, traj.labels))
-            reassoc_stats["missing_after_model_check"] = int(np.isnan(traj.xyz[..., 0]).sum())
-        timings["skeleton"] = (time.perf_counter() - t0) * 1e3
-    reassoc_stats["swaps_repaired"] = sum(1 for e in swaps if e[0] == "swap")
-    reassoc_stats["jump_samples_removed"] = sum(1 for e in swaps if e[0] == "jump")
-    tracks = Tracks2D(tracks.labels, measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
-    return MarkerCapture(detections, init, tracks, traj, fit, timings, reassoc_stats)
+
+def _solve_skeleton(passes: _Passes, subject, params: MarkerPipelineParams):
+    """Fit the subject's skeleton to the trajectories; with re-association and
+    ``model_guided``, let the fit guide two more passes, then check and fill the points
+    against it (``passes`` is updated). Returns the fit."""
+    from mocap.skeleton import SkeletonSolver
+
+    solver = SkeletonSolver(subject)
+    fit = solver.solve(passes.traj)
+    if params.reassociation is None or not params.model_guided:
+        return fit
+    _model_guided_passes(passes, solver, fit, params)
+    return _check_against_model(passes, solver, subject, params)
+
+
+def _model_guided_passes(passes: _Passes, solver, fit, params: MarkerPipelineParams) -> None:
+    """Model-guided labelling: the fitted skeleton predicts every marker, also those the
+    cameras' trackers lost; markers that disagree with the fit by more than
+    ``model_outlier_mm`` are left out of a second fit first. One pass re-associates with the
+    model's markers, one more with the trajectories it gave."""
+    fit = solver.solve(_drop_outliers(passes.traj, fit, params.model_outlier_mm))
+    predicted = _model_markers(solver, fit, passes.traj.labels)
+    gate = np.full(predicted.shape[:2], params.model_gate_px)
+    passes.run(points=predicted, gate_px=gate, prefix="model_", jumps=False)
+    passes.run(jumps=False)
+
+
+def _check_against_model(passes: _Passes, solver, subject, params: MarkerPipelineParams):
+    """Refit, remove the points still off the fitted skeleton by more than
+    ``model_outlier_mm`` (mislabelled or ghosts), and fill gaps from the skeleton fitted to
+    the measured points only: in fast motion a spline across a gap is centimetres off, the
+    model driven by the segment's other markers is not. Returns the last fit."""
+    traj = passes.traj
+    fit = solver.solve(traj)
+    for _ in range(2):  # a wrong point pulls the fit towards it: drop, refit, drop again
+        fit = solver.solve(_drop_outliers(traj, fit, params.model_outlier_mm))
+    traj = _drop_outliers(traj, fit, params.model_outlier_mm)
+    measured_only = Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
+                                 traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
+    fit = solver.solve(measured_only)
+    body_of = {m.name: m.body for m in subject.markers}
+    passes.traj = _fill_from_model(measured_only, _model_markers(solver, fit, traj.labels),
+                                   params.reconstruction, [body_of.get(n, "") for n in traj.labels],
+                                   _constrained(solver, fit, traj.labels))
+    passes.stats["missing_after_model_check"] = int(np.isnan(passes.traj.xyz[..., 0]).sum())
+    return fit
 
 
 def capture_unsynchronised(
