@@ -304,6 +304,99 @@ def _candidates(
     return cand_px, cand_n, tracker_idx
 
 
+class _LabelMotion:
+    """Each label's last triangulated point and its velocity (metres per frame), to predict
+    the label for up to ``max_coast_frames`` frames once no camera pair sees it."""
+
+    def __init__(self, M: int, max_coast_frames: int) -> None:
+        self.max_coast_frames = max_coast_frames
+        self.last = np.full((M, 3), np.nan)         # last triangulated point of each label
+        self.vel = np.zeros((M, 3))                 # its velocity, metres per frame
+        self.last_f = np.full(M, -(10**9))
+
+    def coast(self, f: int) -> np.ndarray:
+        """``(M, 3)`` constant-velocity predictions at frame ``f`` (NaN where too old or never seen)."""
+        age = f - self.last_f
+        moving = (age <= self.max_coast_frames) & np.isfinite(self.last).all(axis=1)
+        return np.where(moving[:, None], self.last + self.vel * age[:, None], np.nan)
+
+    def update(self, f: int, now: np.ndarray) -> None:
+        """Take frame ``f``'s triangulated points ``now (M, 3)`` (NaN where unseen)."""
+        last, vel, last_f = self.last, self.vel, self.last_f
+        seen = np.isfinite(now).all(axis=1)
+        recent = seen & (f - last_f <= self.max_coast_frames) & np.isfinite(last).all(axis=1)
+        vel[recent] = (now[recent] - last[recent]) / (f - last_f[recent])[:, None]
+        vel[seen & ~recent] = 0.0
+        last[seen] = now[seen]
+        last_f[seen] = f
+
+
+def _observed(cand_n: list, f: int, idx: np.ndarray) -> np.ndarray:
+    """``(C, M, 2)`` normalised observations of frame ``f`` at candidate indices ``idx (C, M)``."""
+    C, M = idx.shape
+    xy = np.full((C, M, 2), np.nan)
+    for c in range(C):
+        ok = idx[c] >= 0
+        xy[c, ok] = cand_n[c][f][idx[c, ok]]
+    return xy
+
+
+def _relabel_frame(cur: np.ndarray, cand_n: list, f: int, cal: Calibration, focal: np.ndarray, coast: np.ndarray,
+                   sweeps: int, gate_px: float, max_residual_px: float) -> tuple[np.ndarray, np.ndarray | None]:
+    """Frame ``f``'s correction sweeps (see :func:`relabel_views`): candidate indices ``cur
+    (C, M)`` re-assigned to the labels the other cameras (or ``coast``) project onto them.
+    Returns them and the sweep's points ``(C + 1, M, 3)``, or None when the last sweep
+    changed labels (its all-camera block is then stale)."""
+    C, M = cur.shape
+    cams = np.arange(C)
+    for _ in range(sweeps):
+        xy = _observed(cand_n, f, cur)
+        # Blocks 0..C-1 leave one camera out; block C uses them all.
+        blocks = np.repeat(xy[None], C + 1, axis=0)             # (C + 1, C, M, 2)
+        blocks[cams, cams] = np.nan
+        tri = triangulate_normalized(blocks.transpose(1, 0, 2, 3).reshape(C, (C + 1) * M, 2), cal,
+                                     max_residual_px=max_residual_px, refine=False)
+        pts = tri.points.reshape(C + 1, M, 3)
+        # A label's own motion only proposes an observation where it has none; it
+        # never vetoes one (a coasting prediction drifts, the other views do not).
+        from_motion = ~np.isfinite(pts[:C]).all(axis=2) & (cur < 0)        # (C, M)
+        loo = np.where(from_motion[..., None], coast[None], pts[:C])
+        new = cur.copy()
+        for c in range(C):
+            pred = camera_normalized(cal[c], loo[c]) * focal[c]
+            here = np.where((cur[c] >= 0)[:, None], cand_n[c][f][np.maximum(cur[c], 0)] * focal[c], np.nan) if len(cand_n[c][f]) else np.full((M, 2), np.nan)
+            with np.errstate(invalid="ignore"):
+                ok = np.linalg.norm(here - pred, axis=1) <= gate_px
+            if not (np.isfinite(pred).all(axis=1) & ~ok).any():
+                continue  # every predicted label already at its observation
+            new[c] = _reassign(pred, cur[c], cand_n[c][f] * focal[c], gate_px)
+        if np.array_equal(new, cur):
+            return cur, pts
+        cur = new
+    return cur, None
+
+
+def _mapped(tracker_idx: np.ndarray, mapping: np.ndarray) -> np.ndarray:
+    """``(C, M)`` candidate index of each label (-1: none) from one frame's ``tracker_idx
+    (C, M)`` and the cameras' tracker label -> label ``mapping (C, M)``."""
+    C, M = mapping.shape
+    cur = np.full((C, M), -1)
+    for c in range(C):
+        a = np.flatnonzero((tracker_idx[c] >= 0) & (mapping[c] >= 0))
+        cur[c, mapping[c, a]] = tracker_idx[c, a]
+    return cur
+
+
+def _remember(mapping: np.ndarray, tracker_idx: np.ndarray, cur: np.ndarray) -> None:
+    """Remember in ``mapping`` which label each tracker label's observation now belongs to
+    (-1: to none)."""
+    for c in range(len(mapping)):
+        a = np.flatnonzero(tracker_idx[c] >= 0)
+        if a.size:
+            same = tracker_idx[c, a][:, None] == cur[c][None, :]         # (a, M)
+            mapping[c, a] = np.where(same.any(axis=1), np.argmax(same, axis=1), -1)
+
+
 def relabel_views(
     tracks: Tracks2D,
     calibration: Calibration,
@@ -365,75 +458,105 @@ def relabel_views(
     focal = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in cal])
     out = np.full_like(raw, np.nan)
     mapping = np.tile(np.arange(M), (C, 1))        # camera c's tracker label a -> label (-1: unknown)
-    cams = np.arange(C)
-    last = np.full((M, 3), np.nan)                  # last triangulated point of each label
-    vel = np.zeros((M, 3))                          # its velocity, metres per frame
-    last_f = np.full(M, -(10**9))
+    motion = _LabelMotion(M, max_coast_frames)
     for f in range(F):
-        cur = np.full((C, M), -1)                   # candidate index of each label
-        for c in range(C):
-            a = np.flatnonzero((tracker_idx[f, c] >= 0) & (mapping[c] >= 0))
-            cur[c, mapping[c, a]] = tracker_idx[f, c, a]
-        age = f - last_f
-        moving = (age <= max_coast_frames) & np.isfinite(last).all(axis=1)
-        coast = np.where(moving[:, None], last + vel * age[:, None], np.nan)
-
-        def observed(idx: np.ndarray) -> np.ndarray:
-            xy = np.full((C, M, 2), np.nan)
-            for c in range(C):
-                ok = idx[c] >= 0
-                xy[c, ok] = cand_n[c][f][idx[c, ok]]
-            return xy
-
-        for _ in range(sweeps):
-            xy = observed(cur)
-            # Blocks 0..C-1 leave one camera out; block C uses them all.
-            blocks = np.repeat(xy[None], C + 1, axis=0)             # (C + 1, C, M, 2)
-            blocks[cams, cams] = np.nan
-            tri = triangulate_normalized(blocks.transpose(1, 0, 2, 3).reshape(C, (C + 1) * M, 2), cal,
-                                         max_residual_px=max_residual_px, refine=False)
-            pts = tri.points.reshape(C + 1, M, 3)
-            # A label's own motion only proposes an observation where it has none; it
-            # never vetoes one (a coasting prediction drifts, the other views do not).
-            from_motion = ~np.isfinite(pts[:C]).all(axis=2) & (cur < 0)        # (C, M)
-            loo = np.where(from_motion[..., None], coast[None], pts[:C])
-            new = cur.copy()
-            for c in range(C):
-                pred = camera_normalized(cal[c], loo[c]) * focal[c]
-                here = np.where((cur[c] >= 0)[:, None], cand_n[c][f][np.maximum(cur[c], 0)] * focal[c], np.nan) if len(cand_n[c][f]) else np.full((M, 2), np.nan)
-                with np.errstate(invalid="ignore"):
-                    ok = np.linalg.norm(here - pred, axis=1) <= gate_px
-                if not (np.isfinite(pred).all(axis=1) & ~ok).any():
-                    continue  # every predicted label already at its observation
-                new[c] = _reassign(pred, cur[c], cand_n[c][f] * focal[c], gate_px)
-            if np.array_equal(new, cur):
-                break
-            cur = new
-        else:
-            pts = None  # the last sweep changed labels: the all-camera block is stale
+        cur = _mapped(tracker_idx[f], mapping)      # candidate index of each label
+        cur, pts = _relabel_frame(cur, cand_n, f, cal, focal, motion.coast(f), sweeps, gate_px, max_residual_px)
         for c in range(C):
             ok = cur[c] >= 0
             out[f, c, ok] = cand_px[c][f][cur[c, ok]]
-            # Remember which label each tracker label's observation now belongs to.
-            a = np.flatnonzero(tracker_idx[f, c] >= 0)
-            if a.size:
-                same = tracker_idx[f, c, a][:, None] == cur[c][None, :]         # (a, M)
-                mapping[c, a] = np.where(same.any(axis=1), np.argmax(same, axis=1), -1)
+        _remember(mapping, tracker_idx[f], cur)
         # Each label's own 3D motion, for the frames when no camera pair sees it.
         if pts is None:
-            now = triangulate_normalized(observed(cur), cal, max_residual_px=max_residual_px, refine=False).points
+            now = triangulate_normalized(_observed(cand_n, f, cur), cal, max_residual_px=max_residual_px,
+                                         refine=False).points
         else:
             now = pts[C]
-        seen = np.isfinite(now).all(axis=1)
-        recent = seen & (f - last_f <= max_coast_frames) & np.isfinite(last).all(axis=1)
-        vel[recent] = (now[recent] - last[recent]) / (f - last_f[recent])[:, None]
-        vel[seen & ~recent] = 0.0
-        last[seen] = now[seen]
-        last_f[seen] = f
+        motion.update(f, now)
     status = np.asarray(tracks.status).copy() if tracks.status is not None else np.zeros((F, C, M), np.int8)
     measured = np.isfinite(out).all(axis=3)
     status = np.where(measured, Tracks2D.TRACKED, np.where(status == Tracks2D.TRACKED, 0, status)).astype(np.int8)
     return Tracks2D(list(tracks.labels), out, tracks.predicted_xy, status, list(tracks.camera_names))
+
+
+def _checked_times(tracks: Tracks2D, times: np.ndarray | None) -> np.ndarray:
+    """The frame times ``(F,)`` as float, after checking the tracks' shapes against them."""
+    xy = np.asarray(tracks.xy, dtype=np.float64)
+    if xy.ndim != 4 or xy.shape[3] != 2:
+        raise ValueError(f"tracks.xy must be (F, C, M, 2) pixels, got shape {xy.shape}")
+    F, C, M, _ = xy.shape
+    if len(tracks.camera_names) != C or len(tracks.labels) != M:
+        raise ValueError(
+            f"tracks.xy is {xy.shape} but there are {len(tracks.camera_names)} camera names and {len(tracks.labels)} labels"
+        )
+    if times is None:
+        raise ValueError("reconstruct needs the frame times (seconds), e.g. np.arange(F) / rate_hz")
+    t = np.asarray(times, dtype=np.float64).ravel()
+    if t.shape[0] != F:
+        raise ValueError(f"times has {t.shape[0]} entries but tracks have {F} frames")
+    return t
+
+
+def _weighted_views(tracks: Tracks2D, cal: Calibration, params: ReconstructionParams) -> tuple[np.ndarray, np.ndarray]:
+    """``(C, F * M, 2)`` pixels and their weights: the measurements (weight 1), the trackers'
+    coasting predictions where there is none (``coasting_weight``), views off the epipolar
+    lines dropped (weight 0, NaN)."""
+    xy = np.asarray(tracks.xy, dtype=np.float64)
+    F, C, M, _ = xy.shape
+    p2ds = xy.transpose(1, 0, 2, 3).reshape(C, F * M, 2).copy()
+    weights = np.isfinite(p2ds).all(axis=2).astype(np.float64)
+    if params.coasting_weight > 0 and tracks.predicted_xy is not None and tracks.status is not None:
+        pred = np.asarray(tracks.predicted_xy, dtype=np.float64).transpose(1, 0, 2, 3).reshape(C, F * M, 2)
+        coast = (np.asarray(tracks.status).transpose(1, 0, 2).reshape(C, F * M) == Tracks2D.COASTING)
+        coast &= (weights == 0) & np.isfinite(pred).all(axis=2)
+        p2ds[coast] = pred[coast]
+        weights[coast] = params.coasting_weight
+
+    xy_norm = normalized_coordinates(p2ds, cal)
+    keep = epipolar_keep_mask(xy_norm, cal, params.epipolar_threshold_px)
+    weights = np.where(keep, weights, 0.0)
+    p2ds = np.where(keep[..., None], p2ds, np.nan)
+    return p2ds, weights
+
+
+def _triangulate_tracks(tracks: Tracks2D, cal: Calibration,
+                        params: ReconstructionParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points ``(F, M, 3)``, residuals ``(F, M)`` px and view counts ``(F, M)`` of the tracks."""
+    F, C, M, _ = np.shape(tracks.xy)
+    p2ds, weights = _weighted_views(tracks, cal, params)
+
+    def triangulate_views(w: np.ndarray):
+        return triangulate(
+            p2ds, cal, w,
+            max_residual_px=params.max_residual_px,
+            refine=params.refine and params.refine_iterations > 0,
+            iterations=params.refine_iterations,
+            min_views=params.min_views,
+        )
+
+    res = triangulate_views(weights)
+    if params.crowd_px > 0 and params.crowded_weight < 1:
+        # Views whose blob shares light with a neighbour's, found from the first points,
+        # count less in a second triangulation.
+        crowded = crowded_views(p2ds.reshape(C, F, M, 2), res.points.reshape(F, M, 3), cal, params.crowd_px)
+        if crowded.any():
+            res = triangulate_views(np.where(crowded.reshape(C, F * M), params.crowded_weight * weights, weights))
+    return res.points.reshape(F, M, 3), res.residual_px.reshape(F, M), res.n_views.reshape(F, M).astype(np.int16)
+
+
+def _smooth_and_fill(xyz: np.ndarray, t: np.ndarray, params: ReconstructionParams) -> tuple[np.ndarray, np.ndarray]:
+    """The points smoothed as ``params.smoothing`` says, short gaps filled; and the filled mask."""
+    F = xyz.shape[0]
+    if params.smoothing != "none" and F > 1:
+        dt = float(np.median(np.diff(t)))
+        if params.smoothing == "butterworth":
+            xyz = butterworth_filtfilt(xyz, 1.0 / dt, params.cutoff_hz, params.butter_order)
+        else:
+            xyz = rts_smooth(xyz, dt, params.rts_accel_std, params.rts_meas_std_m)
+    method = params.gap_fill
+    if method == "auto":
+        method = "cubic" if params.smoothing != "none" else "lsq"
+    return fill_gaps(xyz, t, params.max_gap_frames, method, params.gap_context_frames)
 
 
 def reconstruct(
@@ -465,66 +588,12 @@ def reconstruct(
         ``filled`` marks spline-filled samples.
     """
     params = ReconstructionParams() if params is None else params
-    xy = np.asarray(tracks.xy, dtype=np.float64)
-    if xy.ndim != 4 or xy.shape[3] != 2:
-        raise ValueError(f"tracks.xy must be (F, C, M, 2) pixels, got shape {xy.shape}")
-    F, C, M, _ = xy.shape
-    if len(tracks.camera_names) != C or len(tracks.labels) != M:
-        raise ValueError(
-            f"tracks.xy is {xy.shape} but there are {len(tracks.camera_names)} camera names and {len(tracks.labels)} labels"
-        )
-    if times is None:
-        raise ValueError("reconstruct needs the frame times (seconds), e.g. np.arange(F) / rate_hz")
-    t = np.asarray(times, dtype=np.float64).ravel()
-    if t.shape[0] != F:
-        raise ValueError(f"times has {t.shape[0]} entries but tracks have {F} frames")
+    t = _checked_times(tracks, times)
+    C = len(tracks.camera_names)
     cal = calibration_for_cameras(list(tracks.camera_names), calibration)
     gate = 1.5 * params.max_residual_px if params.relabel_gate_px is None else params.relabel_gate_px
     if gate > 0 and np.isfinite(gate) and C >= 3:
         tracks = relabel_views(tracks, cal, gate, params.max_residual_px, detections, params.relabel_sweeps)
-        xy = tracks.xy
-
-    p2ds = xy.transpose(1, 0, 2, 3).reshape(C, F * M, 2).copy()
-    weights = np.isfinite(p2ds).all(axis=2).astype(np.float64)
-    if params.coasting_weight > 0 and tracks.predicted_xy is not None and tracks.status is not None:
-        pred = np.asarray(tracks.predicted_xy, dtype=np.float64).transpose(1, 0, 2, 3).reshape(C, F * M, 2)
-        coast = (np.asarray(tracks.status).transpose(1, 0, 2).reshape(C, F * M) == Tracks2D.COASTING)
-        coast &= (weights == 0) & np.isfinite(pred).all(axis=2)
-        p2ds[coast] = pred[coast]
-        weights[coast] = params.coasting_weight
-
-    xy_norm = normalized_coordinates(p2ds, cal)
-    keep = epipolar_keep_mask(xy_norm, cal, params.epipolar_threshold_px)
-    weights = np.where(keep, weights, 0.0)
-    p2ds = np.where(keep[..., None], p2ds, np.nan)
-    def triangulate_views(w: np.ndarray):
-        return triangulate(
-            p2ds, cal, w,
-            max_residual_px=params.max_residual_px,
-            refine=params.refine and params.refine_iterations > 0,
-            iterations=params.refine_iterations,
-            min_views=params.min_views,
-        )
-
-    res = triangulate_views(weights)
-    if params.crowd_px > 0 and params.crowded_weight < 1:
-        # Views whose blob shares light with a neighbour's, found from the first points,
-        # count less in a second triangulation.
-        crowded = crowded_views(p2ds.reshape(C, F, M, 2), res.points.reshape(F, M, 3), cal, params.crowd_px)
-        if crowded.any():
-            res = triangulate_views(np.where(crowded.reshape(C, F * M), params.crowded_weight * weights, weights))
-    xyz = res.points.reshape(F, M, 3)
-    residual = res.residual_px.reshape(F, M)
-    n_views = res.n_views.reshape(F, M).astype(np.int16)
-
-    if params.smoothing != "none" and F > 1:
-        dt = float(np.median(np.diff(t)))
-        if params.smoothing == "butterworth":
-            xyz = butterworth_filtfilt(xyz, 1.0 / dt, params.cutoff_hz, params.butter_order)
-        else:
-            xyz = rts_smooth(xyz, dt, params.rts_accel_std, params.rts_meas_std_m)
-    method = params.gap_fill
-    if method == "auto":
-        method = "cubic" if params.smoothing != "none" else "lsq"
-    xyz, filled = fill_gaps(xyz, t, params.max_gap_frames, method, params.gap_context_frames)
+    xyz, residual, n_views = _triangulate_tracks(tracks, cal, params)
+    xyz, filled = _smooth_and_fill(xyz, t, params)
     return Trajectories(list(tracks.labels), xyz, t, filled=filled, residual_px=residual, n_views=n_views)
