@@ -166,9 +166,45 @@ def reconstruct_unlabelled(
     C = len(calibration)
     xs = normalised if normalised is not None else normalised_detections(detections, calibration)
     focal = np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in calibration])
-    Ps = [np.hstack([c.R, c.t[:, None]]) for c in calibration]
-    trees = [cKDTree(x) if len(x) else None for x in xs]
+    cand = _pair_candidates(xs, calibration, focal, p)
+    if cand is None:
+        return UnlabelledPoints.empty(C)
+    ca, cb, ia, ib, dist, amb = cand
+    X = _candidate_points(xs, calibration, ca, cb, ia, ib)
+    views, depth_ok = _supporting_views(X, xs, calibration, focal, ca, cb, ia, ib, p)
+    # Rank each candidate by the views that agree within rank_residual_px (worst-view
+    # rejection), less its residual in units of rank_residual_px. Where markers lie a few
+    # pixels apart, support gathered from a neighbour's detections makes a ghost between two
+    # markers with more views (each a pixel or so off) than either true point (a tenth of a
+    # pixel); counting views alone takes the ghost first and both markers are lost. The
+    # accepted point keeps all its views: its own triangulation rejects at max_residual_px.
+    tight = triangulate_normalized(_observations(xs, views), calibration, max_residual_px=p.rank_residual_px,
+                                   refine=False)
+    agreeing = np.where(np.isfinite(tight.residual_px), tight.n_views, 1)
+    score = agreeing - np.nan_to_num(tight.residual_px, nan=0.0) / p.rank_residual_px
+    order = np.lexsort((dist, -score))
+    order = order[depth_ok[order]]
+    accepted, accepted_amb = _accept_in_order(order, xs, views, ca, cb, ia, ib, amb)
+    if not accepted:
+        return UnlabelledPoints.empty(C)
+    det_index = np.array(accepted, dtype=np.intp)                # (N, C)
+    tri = triangulate_normalized(_observations(xs, det_index), calibration, max_residual_px=p.max_residual_px)
+    keep = np.isfinite(tri.points).all(axis=1)
+    det_index = np.where(tri.used.T, det_index, -1)
+    return UnlabelledPoints(
+        xyz=tri.points[keep],
+        detection_index=det_index[keep],
+        n_views=tri.n_views[keep].astype(np.intp),
+        residual_px=tri.residual_px[keep],
+        ambiguous=np.array(accepted_amb, bool)[keep],
+    )
 
+
+def _pair_candidates(xs: list[np.ndarray], calibration: Calibration, focal: np.ndarray, p: CorrespondenceParams):
+    """Every pair of detections of two cameras within ``epipolar_px`` of each other's
+    epipolar lines: ``(ca, cb, ia, ib, dist, amb)`` (cameras, detection indices, the larger
+    epipolar distance in pixels, whether either detection has other candidates in that
+    pair of cameras), or None when there is none."""
     cand_a, cand_b, cand_ia, cand_ib, cand_d, cand_amb = [], [], [], [], [], []
     for (a, b), E in _pair_geometry(calibration).items():
         if len(xs[a]) == 0 or len(xs[b]) == 0:
@@ -193,19 +229,32 @@ def reconstruct_unlabelled(
         cand_d.append(d[ib, ia])
         cand_amb.append((n_in_b[ia] > 1) | (n_in_a[ib] > 1))
     if not cand_a:
-        return UnlabelledPoints.empty(C)
-    ca, cb = np.concatenate(cand_a), np.concatenate(cand_b)
-    ia, ib = np.concatenate(cand_ia), np.concatenate(cand_ib)
-    dist, amb = np.concatenate(cand_d), np.concatenate(cand_amb)
-    K = ca.size
+        return None
+    return (np.concatenate(cand_a), np.concatenate(cand_b), np.concatenate(cand_ia), np.concatenate(cand_ib),
+            np.concatenate(cand_d), np.concatenate(cand_amb))
 
-    # Two-view points of every candidate, then support from every camera.
-    X = np.empty((K, 3))
-    for a in range(C):
-        for b in range(a + 1, C):
+
+def _candidate_points(xs: list[np.ndarray], calibration: Calibration, ca: np.ndarray, cb: np.ndarray,
+                      ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """``(K, 3)`` two-view points of the ``K`` candidates."""
+    Ps = [np.hstack([c.R, c.t[:, None]]) for c in calibration]
+    X = np.empty((ca.size, 3))
+    for a in range(len(calibration)):
+        for b in range(a + 1, len(calibration)):
             sel = (ca == a) & (cb == b)
             if sel.any():
                 X[sel] = _two_view_points(xs[a][ia[sel]], xs[b][ib[sel]], Ps[a], Ps[b])
+    return X
+
+
+def _supporting_views(X: np.ndarray, xs: list[np.ndarray], calibration: Calibration, focal: np.ndarray,
+                      ca: np.ndarray, cb: np.ndarray, ia: np.ndarray, ib: np.ndarray,
+                      p: CorrespondenceParams) -> tuple[np.ndarray, np.ndarray]:
+    """``views (K, C)``: each candidate's detection in every camera (its pair's two, and the
+    nearest within ``support_px`` of its projection in the others; -1: none), and
+    ``depth_ok (K,)``: the point lies in front of its pair's cameras."""
+    K, C = len(X), len(calibration)
+    trees = [cKDTree(x) if len(x) else None for x in xs]
     views = np.full((K, C), -1, dtype=np.intp)
     views[np.arange(K), ca] = ia
     views[np.arange(K), cb] = ib
@@ -225,22 +274,24 @@ def reconstruct_unlabelled(
         hit = np.isfinite(dd)
         rows = np.flatnonzero(other)[hit]
         views[rows, c] = ii[hit]
-    # Rank each candidate by the views that agree within rank_residual_px (worst-view
-    # rejection), less its residual in units of rank_residual_px. Where markers lie a few
-    # pixels apart, support gathered from a neighbour's detections makes a ghost between two
-    # markers with more views (each a pixel or so off) than either true point (a tenth of a
-    # pixel); counting views alone takes the ghost first and both markers are lost. The
-    # accepted point keeps all its views: its own triangulation rejects at max_residual_px.
-    cand_obs = np.full((C, K, 2), np.nan)
-    for c in range(C):
-        ok = views[:, c] >= 0
-        cand_obs[c, ok] = xs[c][views[ok, c]]
-    tight = triangulate_normalized(cand_obs, calibration, max_residual_px=p.rank_residual_px, refine=False)
-    agreeing = np.where(np.isfinite(tight.residual_px), tight.n_views, 1)
-    score = agreeing - np.nan_to_num(tight.residual_px, nan=0.0) / p.rank_residual_px
-    order = np.lexsort((dist, -score))
-    order = order[depth_ok[order]]
+    return views, depth_ok
 
+
+def _observations(xs: list[np.ndarray], index: np.ndarray) -> np.ndarray:
+    """``(C, N, 2)`` normalised detections at ``index (N, C)`` (NaN where -1)."""
+    C, N = len(xs), len(index)
+    obs = np.full((C, N, 2), np.nan)
+    for c in range(C):
+        ok = index[:, c] >= 0
+        obs[c, ok] = xs[c][index[ok, c]]
+    return obs
+
+
+def _accept_in_order(order: np.ndarray, xs: list[np.ndarray], views: np.ndarray, ca: np.ndarray, cb: np.ndarray,
+                     ia: np.ndarray, ib: np.ndarray, amb: np.ndarray) -> tuple[list[np.ndarray], list[bool]]:
+    """Candidates taken greedily in ``order``, each detection used once: their views (a
+    view already used is dropped) and whether each is an ambiguous two-view point."""
+    C = len(xs)
     used = [np.zeros(len(x), bool) for x in xs]
     accepted: list[np.ndarray] = []
     accepted_amb: list[bool] = []
@@ -257,21 +308,4 @@ def reconstruct_unlabelled(
                 used[c][v[c]] = True
         accepted.append(v)
         accepted_amb.append(bool(amb[k]) and int((v >= 0).sum()) == 2)
-    if not accepted:
-        return UnlabelledPoints.empty(C)
-    det_index = np.array(accepted, dtype=np.intp)                # (N, C)
-    N = len(det_index)
-    obs = np.full((C, N, 2), np.nan)
-    for c in range(C):
-        ok = det_index[:, c] >= 0
-        obs[c, ok] = xs[c][det_index[ok, c]]
-    tri = triangulate_normalized(obs, calibration, max_residual_px=p.max_residual_px)
-    keep = np.isfinite(tri.points).all(axis=1)
-    det_index = np.where(tri.used.T, det_index, -1)
-    return UnlabelledPoints(
-        xyz=tri.points[keep],
-        detection_index=det_index[keep],
-        n_views=tri.n_views[keep].astype(np.intp),
-        residual_px=tri.residual_px[keep],
-        ambiguous=np.array(accepted_amb, bool)[keep],
-    )
+    return accepted, accepted_amb
