@@ -223,14 +223,7 @@ def fill_gaps(
     if p.ndim != 3:
         raise ValueError(f"xyz must be (F, M, D), got shape {p.shape}")
     t = np.asarray(times, dtype=np.float64).ravel()
-    if t.shape[0] != p.shape[0]:
-        raise ValueError(f"times has {t.shape[0]} entries but xyz has {p.shape[0]} frames")
-    if max_gap_frames < 0:
-        raise ValueError(f"max_gap_frames={max_gap_frames} must be >= 0")
-    if method not in ("cubic", "lsq"):
-        raise ValueError(f"method={method!r}: use 'cubic' or 'lsq'")
-    if context_frames < 1:
-        raise ValueError(f"context_frames={context_frames} must be >= 1")
+    _check_fill_args(p, t, max_gap_frames, method, context_frames)
     F, M, _ = p.shape
     valid = np.isfinite(p).all(axis=2)
     filled = np.zeros((F, M), dtype=bool)
@@ -246,16 +239,35 @@ def fill_gaps(
         starts, stops = finite_runs(missing[:, m])
         ok = (starts > 0) & (stops < F) & (stops - starts <= max_gap_frames)
         for s, e in zip(starts[ok], stops[ok]):
-            side = context_frames if method == "cubic" else int(np.clip(e - s, 4, max(4, context_frames)))
-            lo, hi = max(0, s - side), min(F, e + side)
-            ctx = lo + np.flatnonzero(valid[lo:hi, m])
-            gap = np.arange(s, e)
-            # Abscissa in frame periods from the gap start keeps the fit well scaled.
-            u = (t - t[s]) / dt
-            if method == "lsq" and ctx.size >= 6:
-                coef = np.polynomial.polynomial.polyfit(u[ctx], p[ctx, m], 3)   # (4, D)
-                p[gap, m] = np.polynomial.polynomial.polyval(u[gap], coef).T
-            else:
-                p[gap, m] = CubicSpline(u[ctx], p[ctx, m], axis=0)(u[gap])
-            filled[gap, m] = True
+            p[s:e, m] = _gap_fit(p[:, m], valid[:, m], t, dt, s, e, method, context_frames)
+            filled[s:e, m] = True
     return p, filled
+
+
+def _check_fill_args(p: np.ndarray, t: np.ndarray, max_gap_frames: int, method: str, context_frames: int) -> None:
+    """Raise ValueError on arguments :func:`fill_gaps` cannot use."""
+    if t.shape[0] != p.shape[0]:
+        raise ValueError(f"times has {t.shape[0]} entries but xyz has {p.shape[0]} frames")
+    if max_gap_frames < 0:
+        raise ValueError(f"max_gap_frames={max_gap_frames} must be >= 0")
+    if method not in ("cubic", "lsq"):
+        raise ValueError(f"method={method!r}: use 'cubic' or 'lsq'")
+    if context_frames < 1:
+        raise ValueError(f"context_frames={context_frames} must be >= 1")
+
+
+def _gap_fit(x: np.ndarray, valid: np.ndarray, t: np.ndarray, dt: float, s: int, e: int, method: str,
+             context_frames: int) -> np.ndarray:
+    """``(e - s, D)`` values of one marker's track ``x (F, D)`` over its gap ``s:e`` (see
+    :func:`fill_gaps`), fitted to its ``valid`` samples around the gap."""
+    F = len(x)
+    side = context_frames if method == "cubic" else int(np.clip(e - s, 4, max(4, context_frames)))
+    lo, hi = max(0, s - side), min(F, e + side)
+    ctx = lo + np.flatnonzero(valid[lo:hi])
+    gap = np.arange(s, e)
+    # Abscissa in frame periods from the gap start keeps the fit well scaled.
+    u = (t - t[s]) / dt
+    if method == "lsq" and ctx.size >= 6:
+        coef = np.polynomial.polynomial.polyfit(u[ctx], x[ctx], 3)   # (4, D)
+        return np.polynomial.polynomial.polyval(u[gap], coef).T
+    return CubicSpline(u[ctx], x[ctx], axis=0)(u[gap])
