@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
+from mocap.skeleton_cold_start import cold_start, cold_start_tables
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 
@@ -225,31 +225,6 @@ def pinocchio_from_mujoco_q(qpos: np.ndarray) -> np.ndarray:
     return out
 
 
-# Cold-start grid: values per hinge for bodies with 1, 2 and 3 hinges (25, 169 and 729 candidates).
-_GRID_STEPS = {1: 25, 2: 13, 3: 9}
-
-
-@dataclass(frozen=True, eq=False)
-class _HingeGrid:
-    values: np.ndarray  # (G, h) rad
-    rotations: np.ndarray  # (G, 3, 3) body rotation relative to its rest frame
-
-
-@dataclass(frozen=True, eq=False)
-class _ColdStartTables:
-    marker_depth: np.ndarray  # (M,) depth of each marker's body in the tree
-    parent: np.ndarray  # (B,)
-    rest_R: np.ndarray  # (B, 3, 3) body rest frame in its parent's frame
-    rest_t: np.ndarray  # (B, 3)
-    hinge_slice: list[np.ndarray]  # per body, indices of its hinges
-    grids: list[_HingeGrid | None]
-    own_markers: list[np.ndarray]  # per body, (M,) bool: marker on the body
-    child_markers: list[np.ndarray]  # per body, (M,) bool: marker on a child of the body
-    local_in_body: list[np.ndarray]  # per body, (M, 3) T-pose marker positions in its frame
-    child_origin: list[np.ndarray]  # per body, (M, 3) T-pose origin of each marker's body in its frame
-    child_radius: np.ndarray  # (M,) distance of each marker from its body's origin
-
-
 class SkeletonSolver:
     """Pinocchio model of a subject with its markers, and the per-frame IK on it.
 
@@ -311,7 +286,7 @@ class SkeletonSolver:
         self._hinge_lower = np.asarray(model.lowerPositionLimit[7:], dtype=np.float64).copy()
         self._hinge_upper = np.asarray(model.upperPositionLimit[7:], dtype=np.float64).copy()
         self.tree = self._kinematic_tree(hinge_names)
-        self._cold = self._cold_start_tables()
+        self._cold = cold_start_tables(self)
 
     # ------------------------------------------------------------------ model views
     @property
@@ -359,62 +334,6 @@ class SkeletonSolver:
             rest_rotation=any(b.has_rotation for b in bodies),
         )
 
-    def _cold_start_tables(self) -> "_ColdStartTables":
-        tree = self.tree
-        n_b, M = len(tree.body_names), len(self.marker_labels)
-        q0 = self.neutral()
-        pin.framesForwardKinematics(self.model, self.data, q0)
-        R0 = np.array([self.data.oMf[f].rotation for f in self._body_frames])
-        t0 = np.array([self.data.oMf[f].translation for f in self._body_frames])
-        marker_p0 = self._markers_and_jacobian(q0, with_jacobian=False)[0]
-        body_index = {n: i for i, n in enumerate(tree.body_names)}
-        marker_body = np.array([body_index[m.body] for m in self.subject.markers], dtype=np.intp)
-        depth = np.zeros(n_b, dtype=np.intp)
-        rest_R = np.tile(np.eye(3), (n_b, 1, 1))
-        rest_t = np.zeros((n_b, 3))
-        for b in range(1, n_b):
-            par = tree.parents[b]
-            depth[b] = depth[par] + 1
-            rest_R[b] = R0[par].T @ R0[b]
-            rest_t[b] = R0[par].T @ (t0[b] - t0[par])
-        grids: list[_HingeGrid | None] = []
-        hinge_index, own, kids, local_in_body, child_origin = [], [], [], [], []
-        marker_parent_body = tree.parents[marker_body]
-        for b in range(n_b):
-            idx = np.flatnonzero(tree.hinge_bodies == b)
-            hinge_index.append(idx)
-            if len(idx):
-                steps = _GRID_STEPS[min(len(idx), 3)]
-                lo = np.maximum(tree.lower_rad[idx], -np.pi)
-                hi = np.minimum(tree.upper_rad[idx], np.pi)
-                axes_values = [np.linspace(lo[k], hi[k], steps) for k in range(len(idx))]
-                values = np.stack(np.meshgrid(*axes_values, indexing="ij"), axis=-1).reshape(-1, len(idx))
-                rot = Rotation.identity(len(values))
-                for k, h in enumerate(idx):  # parent-to-child order: R = R_1 R_2 R_3
-                    rot = rot * Rotation.from_rotvec(values[:, k : k + 1] * tree.hinge_axes[h])
-                grids.append(_HingeGrid(values, rot.as_matrix()))
-            else:
-                grids.append(None)
-            own.append(marker_body == b)
-            kids.append(marker_parent_body == b)
-            local_in_body.append((marker_p0 - t0[b]) @ R0[b])
-            # Rest position of each marker's body origin in body b's frame (used for children).
-            child_origin.append((t0[marker_body] - t0[b]) @ R0[b])
-        child_radius = np.linalg.norm(marker_p0 - t0[marker_body], axis=1)
-        return _ColdStartTables(
-            marker_depth=depth[marker_body],
-            parent=tree.parents,
-            rest_R=rest_R,
-            rest_t=rest_t,
-            hinge_slice=hinge_index,
-            grids=grids,
-            own_markers=own,
-            child_markers=kids,
-            local_in_body=local_in_body,
-            child_origin=child_origin,
-            child_radius=child_radius,
-        )
-
     # ------------------------------------------------------------------ kinematics
     def _placements(self) -> np.ndarray:
         """World poses ``(nj, 4, 4)`` of every joint frame (after a kinematics pass)."""
@@ -460,68 +379,9 @@ class SkeletonSolver:
 
     # ------------------------------------------------------------------ IK
     def _cold_start(self, obs: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        """Initial configuration for a frame with no usable previous solution.
-
-        1. Root pose by a rigid (Kabsch) fit of the T-pose markers nearest the root: those of
-           the root body, adding the bodies one level further away until at least three are
-           measured and not collinear.
-        2. Then, body by body from the root outwards, the body's hinges by a grid search over
-           their range. A candidate is scored on the body's own markers (squared distance to
-           their measurements) and on the markers of its child bodies, which are free to
-           rotate about the child's joint centre: a child's marker must lie at its fixed
-           distance from that centre (squared error of the distance). The best candidate is
-           kept. This lands every limb in the right basin (a T-pose start can leave a bent
-           knee or an arm behind the back in a local minimum); Levenberg-Marquardt then
-           refines all hinges together.
-        """
-        q = self.neutral()
-        model_p, _ = self._markers_and_jacobian(q, with_jacobian=False)
-        cs = self._cold
-        use = ok.copy()
-        for d in range(int(cs.marker_depth.max()) + 1):
-            use = ok & (cs.marker_depth <= d)
-            if use.sum() >= 3:
-                a = obs[use] - obs[use].mean(axis=0)
-                if np.linalg.svd(a, compute_uv=False)[1] > 1e-3 * max(1.0, np.abs(a).max()):
-                    break
-        a_c = obs[use].mean(axis=0)
-        b_c = model_p[use].mean(axis=0)
-        if use.sum() >= 2:
-            rot, _ = Rotation.align_vectors(obs[use] - a_c, model_p[use] - b_c)
-        else:
-            rot = Rotation.identity()
-        q[:3] = a_c - rot.apply(b_c)
-        q[3:7] = rot.as_quat()  # scipy and Pinocchio both use x y z w
-
-        # Body-by-body grid search (numpy forward kinematics of the rest-aligned tree).
-        n_b = len(cs.parent)
-        R_w = np.zeros((n_b, 3, 3))
-        t_w = np.zeros((n_b, 3))
-        R_w[0], t_w[0] = rot.as_matrix(), q[:3]
-        for b in range(1, n_b):
-            par = cs.parent[b]
-            R_p = R_w[par] @ cs.rest_R[b]
-            t_b = t_w[par] + R_w[par] @ cs.rest_t[b]
-            grid = cs.grids[b]
-            own = cs.own_markers[b] & ok
-            kid = cs.child_markers[b] & ok
-            if grid is not None and (own.any() or kid.any()):
-                R_c = R_p[None] @ grid.rotations  # (G, 3, 3)
-                cost = np.zeros(len(R_c))
-                if own.any():
-                    pred = R_c @ cs.local_in_body[b][own].T  # (G, 3, k), relative to t_b
-                    cost += ((pred - (obs[own] - t_b).T) ** 2).sum(axis=(1, 2))
-                if kid.any():
-                    centre = R_c @ cs.child_origin[b][kid].T  # (G, 3, k), relative to t_b
-                    dist = np.sqrt(((centre - (obs[kid] - t_b).T) ** 2).sum(axis=1))  # (G, k)
-                    cost += ((dist - cs.child_radius[kid]) ** 2).sum(axis=1)
-                best = int(np.argmin(cost))
-                q[7 + cs.hinge_slice[b]] = grid.values[best]
-                R_w[b] = R_c[best]
-            else:
-                R_w[b] = R_p
-            t_w[b] = t_b
-        return q
+        """Initial configuration for a frame with no usable previous solution
+        (:func:`mocap.skeleton_cold_start.cold_start`)."""
+        return cold_start(self, obs, ok)
 
     def _solve_frame(self, obs: np.ndarray, ok: np.ndarray, q0: np.ndarray, prior: np.ndarray, iterations: int) -> tuple[np.ndarray, float, int, np.ndarray]:
         """Levenberg-Marquardt from ``q0``; returns ``(q, rms_m, iterations, hessian)``."""
@@ -594,20 +454,8 @@ class SkeletonSolver:
         SkeletonFit
         """
         p = self.params
-        labels = self.marker_labels
-        index = {n: i for i, n in enumerate(traj.labels)}
-        common = [n for n in labels if n in index]
-        if not common:
-            raise MocapInputError(
-                f"none of the trajectory labels {list(traj.labels)[:8]}... is a marker of subject {self.subject.name!r} "
-                f"({labels[:8]}...); give the subject file whose marker names match the trajectories"
-            )
-        F, M = len(traj.times), len(labels)
-        obs_all = np.full((F, M, 3), np.nan)
-        cols = [labels.index(n) for n in common]
-        obs_all[:, cols] = traj.xyz[:, [index[n] for n in common]]
-        finite = np.isfinite(obs_all).all(axis=2)  # (F, M)
-
+        obs_all, finite = self._measured(traj)
+        F, M = finite.shape
         nq, H_n, J_n = self.model.nq, self.model.nv - 6, len(self.subject.bodies)
         q_out = np.full((F, nq), np.nan)
         centres = np.full((F, J_n, 3), np.nan)
@@ -622,17 +470,7 @@ class SkeletonSolver:
                 q_prev = None  # after a gap, start cold again
                 continue
             obs, ok = obs_all[f], finite[f]
-            if q_prev is None:
-                q0 = self._cold_start(obs, ok)
-                q, rms, it, H = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
-            else:
-                q, rms, it, H = self._solve_frame(obs, ok, q_prev, q_prev[7:], p.max_iterations)
-                if rms > p.restart_residual_m:
-                    q0 = self._cold_start(obs, ok)
-                    q_c, rms_c, it_c, H_c = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
-                    it += it_c
-                    if rms_c < rms:
-                        q, rms, H = q_c, rms_c, H_c
+            q, it, H = self._fit_frame(obs, ok, q_prev)
             iters[f] = it
             q_out[f] = q
             q_prev = q
@@ -644,6 +482,48 @@ class SkeletonSolver:
                 std[f] = np.sqrt(np.clip(np.diag(cov)[6:], 0.0, None))
             except np.linalg.LinAlgError:
                 pass
+        return self._fit(traj, q_out, centres, errors, finite, iters, std, valid)
+
+    def _measured(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
+        """The trajectories' markers in the solver's marker order ``(F, M, 3)`` (NaN where
+        missing or not in ``traj``) and where they are finite ``(F, M)``."""
+        labels = self.marker_labels
+        index = {n: i for i, n in enumerate(traj.labels)}
+        common = [n for n in labels if n in index]
+        if not common:
+            raise MocapInputError(
+                f"none of the trajectory labels {list(traj.labels)[:8]}... is a marker of subject {self.subject.name!r} "
+                f"({labels[:8]}...); give the subject file whose marker names match the trajectories"
+            )
+        F, M = len(traj.times), len(labels)
+        obs_all = np.full((F, M, 3), np.nan)
+        cols = [labels.index(n) for n in common]
+        obs_all[:, cols] = traj.xyz[:, [index[n] for n in common]]
+        return obs_all, np.isfinite(obs_all).all(axis=2)
+
+    def _fit_frame(self, obs: np.ndarray, ok: np.ndarray, q_prev: np.ndarray | None) -> tuple[np.ndarray, int, np.ndarray]:
+        """One frame's ``(q, iterations, hessian)``: warm-started from ``q_prev``, and from a
+        cold start when there is none or the warm fit's residual is over ``restart_residual_m``
+        (the better of the two kept)."""
+        p = self.params
+        H_n = self.model.nv - 6
+        if q_prev is None:
+            q0 = self._cold_start(obs, ok)
+            q, rms, it, H = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
+            return q, it, H
+        q, rms, it, H = self._solve_frame(obs, ok, q_prev, q_prev[7:], p.max_iterations)
+        if rms > p.restart_residual_m:
+            q0 = self._cold_start(obs, ok)
+            q_c, rms_c, it_c, H_c = self._solve_frame(obs, ok, q0, np.zeros(H_n), p.cold_start_iterations)
+            it += it_c
+            if rms_c < rms:
+                q, rms, H = q_c, rms_c, H_c
+        return q, it, H
+
+    def _fit(self, traj: Trajectories, q_out: np.ndarray, centres: np.ndarray, errors: np.ndarray,
+             finite: np.ndarray, iters: np.ndarray, std: np.ndarray, valid: np.ndarray) -> SkeletonFit:
+        """The :class:`SkeletonFit` of the solved frames."""
+        F = len(q_out)
         qpos = mujoco_from_pinocchio_q(q_out)
         measured = np.isfinite(errors)
         sq = np.where(measured, errors, 0.0) ** 2
@@ -657,7 +537,7 @@ class SkeletonSolver:
             joint_angles_rad=qpos[:, 7:].copy(),
             body_names=list(self.tree.body_names),
             joint_centres_m=centres,
-            marker_labels=list(labels),
+            marker_labels=list(self.marker_labels),
             marker_errors_mm=errors,
             marker_rms_mm=rms_mm,
             n_markers=finite.sum(axis=1).astype(np.int64),

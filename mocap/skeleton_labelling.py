@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from mocap.skeleton import SkeletonSolver
+from mocap.skeleton_cold_start import place_body
 from mocap.model_labelling import assign_to_predictions, constant_velocity, match_rigid_cluster, point_positions
 
 __all__ = ["SkeletonMarkerModel"]
@@ -217,6 +218,7 @@ class SkeletonMarkerModel:
                 claim(R_w[b], t_w[b], b)
                 claim(R_w[c], t_w[c], c)
                 continue
+            R_c = cost = None
             if grid is not None and (own.any() or kid.any()):
                 R_c = R_p[None] @ grid.rotations  # (G, 3, 3)
                 cost = np.zeros(len(R_c))
@@ -225,12 +227,7 @@ class SkeletonMarkerModel:
                 if kid.any():
                     centre = np.einsum("gij,kj->gki", R_c, cs.child_origin[b][kid]) + t_b   # (G, k, 3)
                     cost += self._shell(centre, cs.child_radius[kid], points[free] if free.any() else points)
-                best = int(np.argmin(cost))
-                q[7 + cs.hinge_slice[b]] = grid.values[best]
-                R_w[b] = R_c[best]
-            else:
-                R_w[b] = R_p
-            t_w[b] = t_b
+            place_body(cs, b, q, R_w, t_w, t_b, R_p, R_c, cost)
             done[b] = True
             claim(R_w[b], t_w[b], b)
         return q
