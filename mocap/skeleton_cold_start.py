@@ -8,14 +8,9 @@ the same grids on unlabelled points and places bodies with :func:`place_body`.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
 import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
-
-if TYPE_CHECKING:
-    from mocap.skeleton import SkeletonSolver
 
 # Cold-start grid: values per hinge for bodies with 1, 2 and 3 hinges (25, 169 and 729 candidates).
 GRID_STEPS = {1: 25, 2: 13, 3: 9}
@@ -56,8 +51,9 @@ def place_body(cs: ColdStartTables, b: int, q: np.ndarray, R_w: np.ndarray, t_w:
     t_w[b] = t_b
 
 
-def cold_start_tables(solver: SkeletonSolver) -> ColdStartTables:
-    """The solver's tables for :func:`cold_start` (rest frames, hinge grids, markers per body)."""
+def cold_start_tables(solver) -> ColdStartTables:
+    """The tables of ``solver`` (a :class:`mocap.skeleton.SkeletonSolver`, which imports this
+    module) for :func:`cold_start`: rest frames, hinge grids, markers per body."""
     tree = solver.tree
     n_b, M = len(tree.body_names), len(solver.marker_labels)
     q0 = solver.neutral()
@@ -114,7 +110,7 @@ def cold_start_tables(solver: SkeletonSolver) -> ColdStartTables:
     )
 
 
-def cold_start(solver: SkeletonSolver, obs: np.ndarray, ok: np.ndarray) -> np.ndarray:
+def cold_start(solver, obs: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """Initial configuration for a frame with no usable previous solution.
 
     1. Root pose by a rigid (Kabsch) fit of the T-pose markers nearest the root: those of
