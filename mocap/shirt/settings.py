@@ -104,6 +104,9 @@ class ShirtPipelineParams:
         Full method, first frame: the solved pose is also tried upright at this many
         headings (0: not), each split and solved again, and the one that agrees best with
         step 1 is kept (:meth:`mocap.shirt.pipeline.ShirtTracker._root_hypotheses`).
+    lock_on_passes : int
+        Full method: the first frame runs this many times, each from the previous pass's
+        pose (:meth:`mocap.shirt.pipeline.ShirtTracker.process`).
     arm_search, arm_search_arms, arm_search_margin, arm_search_top : bool, int, float, int
         Full method, every frame: each arm of the solved pose and ``arm_search_arms`` arms
         of the database (and this frame's neighbours) are scored against step 1 by
@@ -164,6 +167,7 @@ class ShirtPipelineParams:
     arm_hypotheses: bool = True
     hypothesis_margin: float = 0.01
     lock_on_yaws: int = 8
+    lock_on_passes: int = 2
     arm_search: bool = True
     arm_search_arms: int = 400
     arm_search_margin: float = 0.03

@@ -1,0 +1,52 @@
+"""Step 0 of the shirt pipeline: the coarse MOG2 mask and the empty-scene match that trims its ring of the set."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.shirt.background import BackgroundModel, BackgroundParams
+from mocap.shirt.classify import crop_image, crop_view
+
+
+def _empty(rng: np.random.Generator) -> np.ndarray:
+    img = np.clip(rng.normal(120, 2, (240, 320, 3)), 0, 255).astype(np.uint8)  # a grey wall with sensor noise
+    img[100:180, 170:230] = [40, 140, 60]  # a green box
+    img[100:180, 195:203] = [220, 200, 40]  # its yellow ribbon (the shirt's yellow)
+    return img
+
+
+def _with_subject(rng: np.random.Generator) -> np.ndarray:
+    img = _empty(rng)
+    img[60:200, 110:171] = [200, 40, 40]  # the subject, right next to the box
+    return img
+
+
+def test_empty_match_trims_the_set_from_the_coarse_mask_and_keeps_the_subject():
+    rng = np.random.default_rng(3)
+    bg = BackgroundModel(BackgroundParams())
+    bg.learn_empty([_empty(rng) for _ in range(3)])
+    frame = _with_subject(rng)
+    mask = BackgroundModel.full_size(bg.apply(frame), frame.shape[1], frame.shape[0])
+    subject = np.zeros(frame.shape[:2], bool)
+    subject[60:200, 110:171] = True
+    ring = mask & ~subject
+    assert ring[100:180, 171:180].mean() > 0.5  # the coarse mask takes in the box next to the subject
+    view = crop_view(150.0, 130.0, 160.0, 80)
+    same = bg.empty_match(crop_image(frame, view), crop_image(bg.empty, view))
+    crop_ring = crop_image(ring.astype(np.uint8), view) > 0
+    crop_subject = crop_image(subject.astype(np.uint8), view) > 0
+    inner = crop_subject & ~(crop_image((~subject).astype(np.uint8), view) > 0)  # working pixels wholly on the subject
+    assert same[crop_ring & ~crop_subject].mean() > 0.9
+    assert not same[inner].any()
+
+
+def test_after_a_change_of_light_nothing_matches_the_empty_scene():
+    rng = np.random.default_rng(4)
+    bg = BackgroundModel(BackgroundParams())
+    bg.learn_empty([_empty(rng) for _ in range(3)])
+    dim = (_empty(rng).astype(np.float32) * 0.6).astype(np.uint8)
+    view = crop_view(160.0, 120.0, 200.0, 100)
+    assert not bg.empty_match(crop_image(dim, view), crop_image(bg.empty, view)).any()
+    off = BackgroundModel(BackgroundParams(match_empty=0.0))
+    off.learn_empty([_empty(rng)])
+    assert not off.empty_match(crop_image(_empty(rng), view), crop_image(off.empty, view)).any()
