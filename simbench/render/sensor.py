@@ -296,13 +296,43 @@ class Sensor:
         """
         cfg = self.cfg
         mono = cfg.mode == "ir"
+        rad = self._channels(radiance, mono)
+        H, W = rad.shape[:2]
+        e = self._exposed(rad, (H, W) if mono else (H, W, 3), psf_sigma_px, n_subframes)
+        flat = e.reshape(-1)
+        noisy = rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0)
+        z = self._noise_window(rng, flat.size) if noisy else flat  # (unread without noise)
+        shot = np.float32(1.0 if cfg.shot_noise else 0.0)
+        read_var = np.float32(cfg.read_noise_e**2)
+        full_well = np.float32(cfg.full_well_e)
+        top = 2**_LUT_BITS - 1
+        k_idx, noisy = self._index_scale(e, flat, z, noisy, shot, read_var, full_well, top, mono, wb, ae)
+        # Per-value index scale, the channel pattern repeated over one kernel block.
+        kk = np.resize(np.asarray(k_idx, np.float32).reshape(-1), _BLOCK)
+        idx = self._buffer("idx", (flat.size,), np.uint16)
+        _noisy_index(flat, z, noisy, shot, read_var, full_well, kk, np.float32(top), idx)
+        if ae is not None:
+            ae.update(float(idx[::7].mean()) / top)
+        frame = self._gamma(idx, mono, H, W, out)
+        if cfg.jpeg_quality > 0:
+            frame[...] = self.compress(frame)
+        return frame
+
+    def _channels(self, radiance: np.ndarray, mono: bool) -> np.ndarray:
+        """:meth:`frame`'s first step: the radiance's channels the sensor sees, ``(H, W)`` red
+        in ``ir`` mode, else ``(H, W, 3)`` (the alpha of an RGBA read-back dropped)."""
         rad = radiance if radiance.ndim == 3 else radiance[..., None]
         if mono:
             rad = rad[..., 0] if rad.shape[2] == 1 else cv2.extractChannel(np.ascontiguousarray(rad), 0)
         elif rad.shape[2] == 4:
             rad = cv2.cvtColor(rad, cv2.COLOR_RGBA2RGB, dst=self._buffer("rgb", rad.shape[:2] + (3,), np.float32))
-        H, W = rad.shape[:2]
-        shape = (H, W) if mono else (H, W, 3)
+        return rad
+
+    def _exposed(self, rad: np.ndarray, shape: tuple[int, ...], psf_sigma_px: float, n_subframes: int) -> np.ndarray:
+        """:meth:`frame`'s electrons before noise, ``shape`` float32 (a work buffer): the optics
+        blur with the exposure scale and 1 / ``n_subframes`` folded into its kernel, then
+        vignetting."""
+        H, W = shape[:2]
         scale = np.float32(self.scale / np.float32(n_subframes))
         e = self._buffer("e", shape, np.float32)
         if psf_sigma_px > 0:
@@ -311,15 +341,18 @@ class Sensor:
             cv2.sepFilter2D(rad, cv2.CV_32F, k * scale, k, dst=e, borderType=cv2.BORDER_REFLECT_101)
         else:
             np.multiply(rad, scale, out=e)
-        if cfg.vignetting > 0:
+        if self.cfg.vignetting > 0:
             e *= self._vignetting(H, W).reshape((H, W) + (1,) * (e.ndim - 2))
-        flat = e.reshape(-1)
-        noisy = rng is not None and (cfg.shot_noise or cfg.read_noise_e > 0)
-        z = self._noise_window(rng, flat.size) if noisy else flat  # (unread without noise)
-        shot = np.float32(1.0 if cfg.shot_noise else 0.0)
-        read_var = np.float32(cfg.read_noise_e**2)
-        full_well = np.float32(cfg.full_well_e)
-        top = 2**_LUT_BITS - 1
+        return e
+
+    def _index_scale(self, e: np.ndarray, flat: np.ndarray, z: np.ndarray, noisy: bool, shot: np.float32,
+                     read_var: np.float32, full_well: np.float32, top: int, mono: bool, wb: WhiteBalance | None,
+                     ae: AutoExposure | None) -> tuple[np.ndarray, bool]:
+        """:meth:`frame`'s gain x white balance: the scale from electrons to gamma-table index,
+        a float32 scalar or per channel ``(3,)``, and whether noise is still to be added. Auto
+        exposure starts from this frame if it has not; grey-world white balance meters the
+        clipped noisy linear frame, so the noise is added to ``flat`` (``e``) here, in place."""
+        cfg = self.cfg
         if ae is not None and not ae.started:
             ae.start(float(np.mean(np.minimum(flat[::7], cfg.full_well_e))) * cfg.gain / cfg.full_well_e)
         k_idx = np.float32(cfg.gain * (ae.gain if ae is not None else 1.0) / cfg.full_well_e * top)
@@ -330,12 +363,11 @@ class Sensor:
                 _noisy_electrons(flat, z, noisy, shot, read_var, full_well)
                 noisy = False
                 k_idx = (wb.update_means(e.reshape(-1, 3)[::7].mean(axis=0)) * k_idx).astype(np.float32)
-        # Per-value index scale, the channel pattern repeated over one kernel block.
-        kk = np.resize(np.asarray(k_idx, np.float32).reshape(-1), _BLOCK)
-        idx = self._buffer("idx", (flat.size,), np.uint16)
-        _noisy_index(flat, z, noisy, shot, read_var, full_well, kk, np.float32(top), idx)
-        if ae is not None:
-            ae.update(float(idx[::7].mean()) / top)
+        return k_idx, noisy
+
+    def _gamma(self, idx: np.ndarray, mono: bool, H: int, W: int, out: np.ndarray | None) -> np.ndarray:
+        """:meth:`frame`'s gamma step: the table levels of the indices ``idx`` as the ``(H, W, 3)``
+        uint8 frame, written into ``out`` if given (checked) else a new array."""
         if out is None:
             frame = np.empty((H, W, 3), np.uint8)
         elif out.shape != (H, W, 3) or out.dtype != np.uint8 or not out.flags.c_contiguous:
@@ -343,13 +375,11 @@ class Sensor:
         else:
             frame = out
         if mono:
-            level = self._buffer("level", shape, np.uint8)
+            level = self._buffer("level", (H, W), np.uint8)
             _gather(idx, self.lut, level.reshape(-1))
             cv2.cvtColor(level, cv2.COLOR_GRAY2RGB, dst=frame)
         else:
             _gather(idx, self.lut, frame.reshape(-1))
-        if cfg.jpeg_quality > 0:
-            frame[...] = self.compress(frame)
         return frame
 
     def _vignetting(self, height: int, width: int) -> np.ndarray:
