@@ -197,82 +197,112 @@ class FrameRenderer:
         vis = np.zeros((C, self.n_markers))
         n = len(subframe_poses)
         # Pose every sub-frame once; all cameras share them (synchronised global shutters).
-        posed = [self.moving.pose(p.body_pos, p.body_rot, p.marker_pos, p.prop_T) for p in subframe_poses]
-        mid_posed = None if n == 1 else self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
+        posed = [self._pose(p) for p in subframe_poses]
+        mid_posed = None if n == 1 else self._pose(mid_pose)
         sub_times = self.subframe_times(t_mid, n)
         for ci, cam in enumerate(self.cameras):
             if only is not None and ci not in only:
                 continue
             canvas = cam.canvas(ss)
-            acc = None
-            idr = None
             gl_post = self._gl if self.sensor_backend == "gl" else None
-            if gl_post is not None:
-                rad_out = ("radiance_texture",)
-            elif self.cfg.mode == "ir":
-                rad_out = ("radiance_red",)
-            else:
-                rad_out = ("radiance",)
             rows_w = rolling_weights(sub_times, t_mid, self.readout_s, self.exposure_s if self.cfg.motion_blur else 0.0,
                                      H) if self.readout_s > 0 else None
-            for i, ((P, N), ts) in enumerate(zip(posed, sub_times)):
-                if rows_w is not None and not rows_w[i].any():
-                    continue  # no row is exposed at this sub-frame
-                self.raster.update_dynamic(P, N)
-                lights, ambient, ring = self._lights(float(ts), cam)
-                # Without blur the one sub-frame *is* mid-exposure: take its ids from the same pass.
-                outs = rad_out + (("ids",) if n == 1 and rows_w is None else ())
-                out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                         outputs=outs, buffers=self._read_buffers(canvas.width, canvas.height))
-                if rows_w is not None:  # rolling shutter: each output row its own weights
-                    part = cam.finish_radiance(out["radiance"], ss)
-                    part = part * rows_w[i].astype(np.float32).reshape((-1,) + (1,) * (part.ndim - 1))
-                    if acc is None:
-                        acc = part
-                    else:
-                        acc += part
-                elif gl_post is not None:
-                    acc = out["radiance_texture"] if n == 1 else gl_post.accumulate(
-                        out["radiance_texture"], canvas.width, canvas.height, first=i == 0)
-                else:
-                    rad = out["radiance"]
-                    if acc is None:  # one sub-frame: use the read-back buffer as it is
-                        acc = rad if n == 1 else rad.copy()
-                    else:
-                        acc += rad
-                idr = out.get("ids")
+            acc, idr = self._shutter_sum(cam, canvas, posed, sub_times, rows_w, gl_post)
             if idr is None:  # ids and visibility at mid-exposure (the instant of the ground truth)
                 if mid_posed is None:
-                    mid_posed = self.moving.pose(mid_pose.body_pos, mid_pose.body_rot, mid_pose.marker_pos, mid_pose.prop_T)
-                self.raster.update_dynamic(*mid_posed)
-                lights, ambient, ring = self._lights(t_mid, cam)
-                idr = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
-                                         outputs=("ids",), buffers=self._read_buffers(canvas.width, canvas.height))["ids"]
+                    mid_posed = self._pose(mid_pose)
+                idr = self._mid_ids(cam, canvas, mid_posed, t_mid)
             vis[ci] = self._visible_fraction(cam, idr, mid_pose.marker_pos, ss)
             id_maps[ci] = cam.finish_nearest(idr, ss)
             if gl_post is not None:
                 images[ci] = gl_post.finish(acc, n, (canvas.width, canvas.height), ss, canvas.map_xy, (W, H),
                                             self.sensors[ci], self.wbs[ci], self.cfg.psf_sigma_px, rng)
-                continue
-            if self.sensor_backend == "numpy":
-                if rows_w is not None:  # already the weighted mean in the output image
-                    self.sensors[ci].frame(acc, rng, self.wbs[ci], self.cfg.psf_sigma_px, 1, out=images[ci], ae=self.aes[ci])
-                    continue
-                img = cam.finish_radiance(acc, ss)  # the sum: the sensor divides by n
-                self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n, out=images[ci], ae=self.aes[ci])
-                continue
-            if rows_w is not None:
-                img = acc
+            elif self.sensor_backend == "numpy":
+                self._sense(ci, cam, acc, n, rows_w, rng, images[ci])
             else:
-                radiance = acc / np.float32(n) if n > 1 else acc
-                img = cam.finish_radiance(radiance, ss)
-            if self.cfg.psf_sigma_px > 0:
-                img = cv2.GaussianBlur(img, (0, 0), self.cfg.psf_sigma_px)
-            if img.ndim == 2:  # OpenCV drops a single channel axis
-                img = img[..., None]
-            e = self.sensors[ci].electrons(img, rng)
-            images[ci] = self.sensors[ci].to_frame(e, self.wbs[ci], self.aes[ci])
+                images[ci] = self._sense_reference(ci, cam, acc, n, rows_w, rng)
         return FrameOutput(index, t_mid, images, id_maps, vis, n)
+
+    def _pose(self, p: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """The moving geometry's vertex positions and normals in pose ``p``."""
+        return self.moving.pose(p.body_pos, p.body_rot, p.marker_pos, p.prop_T)
+
+    def _shutter_sum(self, cam: VirtualCamera, canvas, posed: list, sub_times: np.ndarray,
+                     rows_w: np.ndarray | None, gl_post: GLSensorPipeline | None) -> tuple:
+        """:meth:`render_frame`'s shutter step for camera ``cam``: its sub-frames rendered and
+        summed, and the id map if the one pass made it (else None). The sum: with a rolling
+        shutter (``rows_w``), each output row's weighted mean at the image; with the gl backend,
+        a texture; else at the canvas, for one sub-frame the read-back buffer as it is."""
+        ss = self.cfg.antialias
+        n = len(posed)
+        acc = None
+        idr = None
+        if gl_post is not None:
+            rad_out = ("radiance_texture",)
+        elif self.cfg.mode == "ir":
+            rad_out = ("radiance_red",)
+        else:
+            rad_out = ("radiance",)
+        for i, ((P, N), ts) in enumerate(zip(posed, sub_times)):
+            if rows_w is not None and not rows_w[i].any():
+                continue  # no row is exposed at this sub-frame
+            self.raster.update_dynamic(P, N)
+            lights, ambient, ring = self._lights(float(ts), cam)
+            # Without blur the one sub-frame *is* mid-exposure: take its ids from the same pass.
+            outs = rad_out + (("ids",) if n == 1 and rows_w is None else ())
+            out = self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
+                                     outputs=outs, buffers=self._read_buffers(canvas.width, canvas.height))
+            if rows_w is not None:  # rolling shutter: each output row its own weights
+                part = cam.finish_radiance(out["radiance"], ss)
+                part = part * rows_w[i].astype(np.float32).reshape((-1,) + (1,) * (part.ndim - 1))
+                if acc is None:
+                    acc = part
+                else:
+                    acc += part
+            elif gl_post is not None:
+                acc = out["radiance_texture"] if n == 1 else gl_post.accumulate(
+                    out["radiance_texture"], canvas.width, canvas.height, first=i == 0)
+            else:
+                rad = out["radiance"]
+                if acc is None:  # one sub-frame: use the read-back buffer as it is
+                    acc = rad if n == 1 else rad.copy()
+                else:
+                    acc += rad
+            idr = out.get("ids")
+        return acc, idr
+
+    def _mid_ids(self, cam: VirtualCamera, canvas, mid_posed: tuple, t_mid: float) -> np.ndarray:
+        """The canvas id map of camera ``cam`` at mid-exposure, posed ``mid_posed``, in a pass of its own."""
+        self.raster.update_dynamic(*mid_posed)
+        lights, ambient, ring = self._lights(t_mid, cam)
+        return self.raster.render(canvas.width, canvas.height, canvas.K, cam.R, cam.t, lights, ambient, ring,
+                                  outputs=("ids",), buffers=self._read_buffers(canvas.width, canvas.height))["ids"]
+
+    def _sense(self, ci: int, cam: VirtualCamera, acc: np.ndarray, n: int, rows_w: np.ndarray | None,
+               rng: np.random.Generator, image: np.ndarray) -> None:
+        """Camera ``ci``'s frame from its shutter sum ``acc`` by the fast path
+        (:meth:`Sensor.frame`), written into ``image``."""
+        if rows_w is not None:  # already the weighted mean in the output image
+            self.sensors[ci].frame(acc, rng, self.wbs[ci], self.cfg.psf_sigma_px, 1, out=image, ae=self.aes[ci])
+            return
+        img = cam.finish_radiance(acc, self.cfg.antialias)  # the sum: the sensor divides by n
+        self.sensors[ci].frame(img, rng, self.wbs[ci], self.cfg.psf_sigma_px, n, out=image, ae=self.aes[ci])
+
+    def _sense_reference(self, ci: int, cam: VirtualCamera, acc: np.ndarray, n: int, rows_w: np.ndarray | None,
+                         rng: np.random.Generator) -> np.ndarray:
+        """Camera ``ci``'s frame from its shutter sum ``acc`` by the reference implementation
+        (``cv2.GaussianBlur``, :meth:`Sensor.electrons`, :meth:`Sensor.to_frame`)."""
+        if rows_w is not None:
+            img = acc
+        else:
+            radiance = acc / np.float32(n) if n > 1 else acc
+            img = cam.finish_radiance(radiance, self.cfg.antialias)
+        if self.cfg.psf_sigma_px > 0:
+            img = cv2.GaussianBlur(img, (0, 0), self.cfg.psf_sigma_px)
+        if img.ndim == 2:  # OpenCV drops a single channel axis
+            img = img[..., None]
+        e = self.sensors[ci].electrons(img, rng)
+        return self.sensors[ci].to_frame(e, self.wbs[ci], self.aes[ci])
 
     def _visible_fraction(self, cam: VirtualCamera, canvas_ids: np.ndarray, marker_pos: np.ndarray, ss: int) -> np.ndarray:
         """Visible marker area over its expected (unoccluded) area, per marker ``(M,)``."""
