@@ -18,7 +18,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from mocap.calibration import Calibration
-from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, normalised_detections, reconstruct_unlabelled
+from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, reconstruct_unlabelled
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels

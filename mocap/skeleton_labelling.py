@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap.skeleton import SkeletonSolver
 from mocap.skeleton_cold_start import place_body
-from mocap.model_labelling import assign_to_predictions, constant_velocity, match_rigid_cluster, point_positions
+from mocap.model_labelling import assign_to_predictions, constant_velocity, match_rigid_cluster
 
 __all__ = ["SkeletonMarkerModel"]
 
