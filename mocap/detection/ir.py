@@ -27,6 +27,7 @@ import numpy as np
 
 from mocap.detection.blobs import blobs_with_small, gate, median_u8, noise_std, threshold_level
 from mocap.detection.params import DetectionParams
+from mocap.srgb import SRGB_TO_LINEAR
 from mocap.types import Detections
 
 
@@ -45,11 +46,6 @@ def local_background(gray: np.ndarray, cell: int, cells: int) -> np.ndarray:
     if cells > 1:
         small = cv2.medianBlur(small, cells)
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
-
-
-#: sRGB grey level (0-255) -> linear light (0-1), IEC 61966-2-1.
-_SRGB_TO_LINEAR = np.where(np.arange(256) <= 10, np.arange(256) / 255.0 / 12.92,
-                           ((np.arange(256) / 255.0 + 0.055) / 1.055) ** 2.4)
 
 
 def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
@@ -82,7 +78,7 @@ def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
     lab = lab_img[py, px].astype(np.intp)
     # Light-weighted centroid (weights: light above the local background).
     if params.response == "srgb":
-        wts = np.maximum(_SRGB_TO_LINEAR[gray[py, px]] - _SRGB_TO_LINEAR[bg_level[py, px]], 0.0)
+        wts = np.maximum(SRGB_TO_LINEAR[gray[py, px]] - SRGB_TO_LINEAR[bg_level[py, px]], 0.0)
     else:
         wts = signal[py, px].astype(np.float64)
     sw = np.bincount(lab, wts, n)

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.cluster.vq import kmeans2
 
 from mocap.errors import InputFileError, MocapInputError
+from mocap.srgb import SRGB_TO_LINEAR as _SRGB_TO_LINEAR_F64
 
 __all__ = [
     "SRGB_TO_LINEAR",
@@ -41,12 +42,7 @@ NOT_SHIRT = -2
 """Label of pixels the user marks as *not shirt* (trousers, skin, background); -1 is unlabelled."""
 
 
-def _srgb_to_linear_table() -> np.ndarray:
-    x = np.arange(256, dtype=np.float64) / 255.0
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-SRGB_TO_LINEAR = _srgb_to_linear_table()
+SRGB_TO_LINEAR = _SRGB_TO_LINEAR_F64.astype(np.float32)
 """(256,) float32: 8-bit sRGB code -> linear value in 0..1 (IEC 61966-2-1)."""
 SRGB_TO_LINEAR.setflags(write=False)
 
