@@ -23,6 +23,7 @@ from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
 from mocap.cluster_labelling import ClusterMarkerModel
+from mocap.model_check import model_markers, robust_skeleton_fit
 from mocap.model_labelling import ModelLabellingParams, PointLabels, label_points
 from mocap.skeleton_labelling import SkeletonMarkerModel
 from mocap.reassociation import ReassociationParams, reassociate
@@ -44,6 +45,12 @@ class MarkerPipelineParams:
     frame kept by a 2D ``tracker`` in every camera (:mod:`mocap.labelling`, :mod:`mocap.tracking`).
     The model path needs a subject (skeleton) or a marker model (rigid clusters); without either
     it falls back to the tracker path.
+
+    ``model_outlier_mm``, ``model_check_rounds`` and ``model_check_max_drops`` set the model
+    check after the skeleton fit (:func:`mocap.model_check.robust_skeleton_fit`): points farther
+    than ``model_outlier_mm`` from the fitted model are dropped one per frame and refit, for at
+    most ``model_check_rounds`` rounds; a frame that needed more than ``model_check_max_drops``
+    drops loses every point the first fit missed.
     """
 
     detection: DetectionParams = field(default_factory=DetectionParams)
@@ -60,6 +67,8 @@ class MarkerPipelineParams:
     model_guided: bool = True
     model_gate_px: float = 5.0
     model_outlier_mm: float = 10.0
+    model_check_rounds: int = 4
+    model_check_max_drops: int = 2
     swap_repair: SwapRepairParams | None = field(default_factory=SwapRepairParams)
 
 
@@ -258,27 +267,24 @@ def _model_guided_passes(passes: _Passes, solver, fit, params: MarkerPipelinePar
     ``model_outlier_mm`` are left out of a second fit first. One pass re-associates with the
     model's markers, one more with the trajectories it gave."""
     fit = solver.solve(_drop_outliers(passes.traj, fit, params.model_outlier_mm))
-    predicted = _model_markers(solver, fit, passes.traj.labels)
+    predicted = model_markers(solver, fit, passes.traj.labels)
     gate = np.full(predicted.shape[:2], params.model_gate_px)
     passes.run(points=predicted, gate_px=gate, prefix="model_", jumps=False)
     passes.run(jumps=False)
 
 
 def _check_against_model(passes: _Passes, solver, subject, params: MarkerPipelineParams):
-    """Refit, remove the points still off the fitted skeleton by more than
-    ``model_outlier_mm`` (mislabelled or ghosts), and fill gaps from the skeleton fitted to
+    """Refit, remove the points the fitted skeleton cannot explain (mislabelled or ghosts:
+    :func:`mocap.model_check.robust_skeleton_fit`), and fill gaps from the skeleton fitted to
     the measured points only: in fast motion a spline across a gap is centimetres off, the
     model driven by the segment's other markers is not. Returns the last fit."""
-    traj = passes.traj
-    fit = solver.solve(traj)
-    for _ in range(2):  # a wrong point pulls the fit towards it: drop, refit, drop again
-        fit = solver.solve(_drop_outliers(traj, fit, params.model_outlier_mm))
-    traj = _drop_outliers(traj, fit, params.model_outlier_mm)
+    fit, traj = robust_skeleton_fit(passes.traj, solver, params.model_outlier_mm, params.model_check_rounds,
+                                    params.model_check_max_drops)
     measured_only = Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
                                  traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
     fit = solver.solve(measured_only)
     body_of = {m.name: m.body for m in subject.markers}
-    passes.traj = _fill_from_model(measured_only, _model_markers(solver, fit, traj.labels),
+    passes.traj = _fill_from_model(measured_only, model_markers(solver, fit, traj.labels),
                                    params.reconstruction, [body_of.get(n, "") for n in traj.labels],
                                    _constrained(solver, fit, traj.labels))
     passes.stats["missing_after_model_check"] = int(np.isnan(passes.traj.xyz[..., 0]).sum())
@@ -483,20 +489,6 @@ def _fill_from_model(traj: Trajectories, predicted: np.ndarray, recon: Reconstru
         xyz[drop, m] = np.nan
         filled[drop, m] = False
     return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, traj.n_views)
-
-
-def _model_markers(solver, fit, labels: list[str]) -> np.ndarray:
-    """Markers of the fitted model ``(F, M, 3)`` in ``labels`` order (NaN where unsolved)."""
-    F = fit.q.shape[0]
-    out = np.full((F, len(labels), 3), np.nan)
-    order = [fit.marker_labels.index(n) if n in fit.marker_labels else -1 for n in labels]
-    for f in range(F):
-        if np.isfinite(fit.q[f]).all():
-            pos = solver.marker_positions(fit.q[f])
-            for j, i in enumerate(order):
-                if i >= 0:
-                    out[f, j] = pos[i]
-    return out
 
 
 def capture_markers(
