@@ -21,6 +21,8 @@ Sets
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import trimesh
 
@@ -176,6 +178,15 @@ def marker_set(name: str, params: BodyParams = BodyParams()) -> list[MarkerSpec]
         In the set's order (:data:`MARKER_SETS`).
     """
     names = marker_names(name)
+    return list(_placed_markers(names, params))
+
+
+@functools.lru_cache(maxsize=16)
+def _placed_markers(names: tuple[str, ...], params: BodyParams) -> tuple[MarkerSpec, ...]:
+    """:func:`marker_set`'s markers, computed once per set and subject in a process: a run asks
+    for them several times (the scene, its MJCF, the subject model, the label template), and
+    each time meshed the whole body surface. A :class:`MarkerSpec` is immutable (its offset is
+    a read-only copy), so the cached markers can be shared."""
     d = body_dimensions(params)
     anatomy = _anatomy(d)
     parts = {p.body: p for p in body_surface(params, shirt=False)}
@@ -183,4 +194,4 @@ def marker_set(name: str, params: BodyParams = BodyParams()) -> list[MarkerSpec]
     for n in names:
         body, anchor, direction = anatomy[n]
         out.append(MarkerSpec(n, body, _place_on_skin(parts[body], anchor, direction)))
-    return out
+    return tuple(out)
