@@ -37,7 +37,9 @@ _KNOWN_GAP = pytest.mark.xfail(reason="known gap (issue 12): markers on several 
 GAPPED = [
     pytest.param("BTS.c3d", 0, 675, marks=_KNOWN_GAP),                           # measured 52 mm, 26/30 gaps, 2 swaps
     pytest.param("kinematics_basket_sprint.c3d", 600, 360, marks=_KNOWN_GAP),    # 6.1 mm, 1 swap
-    pytest.param("kinematics_racing_propulsion.c3d", 0, 700, marks=_KNOWN_GAP),  # 209 mm, 52/225 gaps, 211 swaps
+    # the first 20 frames (0.29 s) fail the same way as the whole take, at a twelfth of the time (2026-11-27:
+    # 216 mm, 4/6 gaps, 33 swaps in 7 CPU-s; frames 0-700: 228 mm, 48/224 gaps, 317 swaps in 91 CPU-s); 10 frames pass
+    pytest.param("kinematics_racing_propulsion.c3d", 0, 20, marks=_KNOWN_GAP),
     pytest.param("ADemo1_rewrite_c3d_pc_float.c3d", 0, 512, marks=_KNOWN_GAP),   # 3.0 mm, 19/55 gaps, 14 swaps
     ("Res16bits.c3d", 0, 100),                                                   # 0.57 mm, 1/1, 0 swaps
 ]
