@@ -11,7 +11,7 @@ from simbench.scenario import load_scenario
 
 def test_the_row_time_correction_beats_triangulating_rows_as_simultaneous(tmp_path):
     sc = load_scenario("scenarios/webcams_rolling_shutter.toml",
-                       overrides={"duration_s": 1.0, "motion.start_s": 0.5, "sensor.antialias": 1})
+                       overrides={"duration_s": 0.6, "motion.start_s": 0.5, "sensor.antialias": 1})
     res = run_scenario(sc, out=tmp_path / "run")
     m = res.metrics
     assert m["rolling_shutter.readout_ms"] == 25.0
