@@ -31,12 +31,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import Tracker2D
+from mocap.trackers.base import AlphaBetaFilter
 from mocap.trackers.registry import register_tracker
 
 
 @register_tracker("alpha_beta_adaptive")
-class AdaptiveAlphaBetaTracker(Tracker2D):
+class AdaptiveAlphaBetaTracker(AlphaBetaFilter):
     """Alpha-beta filter for M markers with a search area that adapts to its residuals
     and the speed (registered as ``alpha_beta_adaptive``).
 
@@ -72,8 +72,6 @@ class AdaptiveAlphaBetaTracker(Tracker2D):
         (see :class:`~mocap.trackers.base.Tracker2D`).
     """
 
-    _sets_own_gate = True  # circular gates straight from the radius (_set_radius)
-
     def __init__(
         self,
         initial_xy: np.ndarray,
@@ -90,38 +88,23 @@ class AdaptiveAlphaBetaTracker(Tracker2D):
         **base_params,
     ) -> None:
         super().__init__(initial_xy, dt, rng, **base_params)
-        if not (0.0 < alpha <= 2.0 and 0.0 <= beta <= 4.0):
-            raise ValueError(f"alpha-beta gains out of the stable range: alpha={alpha!r} (0, 2], beta={beta!r} [0, 4]")
-        if not 0.0 < residual_smoothing <= 1.0:
-            raise ValueError(f"residual_smoothing must be in (0, 1], got {residual_smoothing!r}")
-        self.alpha = float(alpha)
-        self.beta = float(beta)
-        self.base_radius_px = float(base_radius_px)
-        self.residual_gain = float(residual_gain)
-        self.speed_gain = float(speed_gain)
-        self.residual_smoothing = float(residual_smoothing)
-        self.initial_residual_px = float(initial_residual_px)
         # State, kept as two (M, 2) arrays because every frame touches both whole:
         # position x (px; the prior after predict, the posterior after update) and the
         # displacement per frame d = v dt (px/frame), so predict is a single addition.
         # Written for few array passes: at 30 markers each numpy call costs about as
         # much as the arithmetic, and this filter's budget is a few dozen calls a frame.
-        self._x = np.array(initial_xy, dtype=np.float64)
-        self._d = np.zeros_like(self._x)
+        self._start_filter(initial_xy, alpha, beta)
+        if not 0.0 < residual_smoothing <= 1.0:
+            raise ValueError(f"residual_smoothing must be in (0, 1], got {residual_smoothing!r}")
+        self.base_radius_px = float(base_radius_px)
+        self.residual_gain = float(residual_gain)
+        self.speed_gain = float(speed_gain)
+        self.residual_smoothing = float(residual_smoothing)
+        self.initial_residual_px = float(initial_residual_px)
         self.res2 = np.full(self.n_markers, self.initial_residual_px**2)  # (M,) running mean squared residual norm, px**2
         self._res_radius = self._radius_from_residuals()  # (M,) px, base + residual term
         self.radius = self._res_radius.copy()  # (M,) search radius, px
         self._set_radius(self.radius)
-
-    @property
-    def x(self) -> np.ndarray:
-        """(M, 2) float: position in pixels (smoothed ``x_s`` after an update)."""
-        return self._x
-
-    @property
-    def v(self) -> np.ndarray:
-        """(M, 2) float: smoothed velocity ``v_s`` in px/s."""
-        return self._d / self.dt
 
     def _radius_from_residuals(self) -> np.ndarray:
         """(M,) px: base radius plus the residual term of the search radius."""
@@ -176,11 +159,3 @@ class AdaptiveAlphaBetaTracker(Tracker2D):
         self._d[mask] = 0.0
         self.res2[mask] = self.initial_residual_px**2
         self._res_radius = self._radius_from_residuals()
-
-    def _drop_velocity(self, mask: np.ndarray) -> None:
-        self._d[mask] = 0.0
-
-    @property
-    def x_est(self) -> np.ndarray:
-        """(M, 2) float: smoothed position ``x_s`` in pixels."""
-        return self._x

@@ -115,6 +115,14 @@ def _as_positions(initial_xy: np.ndarray) -> np.ndarray:
     return xy
 
 
+def check_positive(**values: float) -> None:
+    """Refuse a tracker parameter that is not > 0 (NaN included): ``ValueError`` naming the
+    first such keyword and its value."""
+    for key, val in values.items():
+        if not val > 0:
+            raise ValueError(f"{key} must be positive, got {val!r}")
+
+
 class Tracker2D:
     """Base class of the label-keeping 2D trackers of one camera.
 
@@ -468,6 +476,44 @@ class Tracker2D:
         self._any_lost = bool((self._status == LOST).any())
         self._any_coasting = bool((self._status != TRACKED).any())
         self._set_info()
+
+
+class AlphaBetaFilter(Tracker2D):
+    """What both alpha-beta trackers keep (``alpha_beta_adaptive`` and seed 000's
+    fixed-circle ``alpha_beta``): the gains, a position ``_x`` and a displacement per frame
+    ``_d`` ``(M, 2)`` px, and circular gates set from a radius (:meth:`_set_radius`).
+
+    Not a tracker of its own: a subclass calls :meth:`_start_filter` in its constructor
+    and implements the hooks (its search radius, residuals, coasting)."""
+
+    _sets_own_gate = True
+
+    def _start_filter(self, initial_xy: np.ndarray, alpha: float, beta: float) -> None:
+        """Check the gains for stability; start every label at ``initial_xy``, not moving."""
+        if not (0.0 < alpha <= 2.0 and 0.0 <= beta <= 4.0):
+            raise ValueError(f"alpha-beta gains out of the stable range: alpha={alpha!r} (0, 2], beta={beta!r} [0, 4]")
+        self.alpha = float(alpha)
+        self.beta = float(beta)
+        self._x = np.array(initial_xy, dtype=np.float64)  # (M, 2) position, px
+        self._d = np.zeros_like(self._x)  # (M, 2) displacement per frame d = v dt, px/frame
+
+    @property
+    def x(self) -> np.ndarray:
+        """(M, 2) float: position in pixels (smoothed ``x_s`` after an update)."""
+        return self._x
+
+    @property
+    def v(self) -> np.ndarray:
+        """(M, 2) float: smoothed velocity ``v_s`` in px/s."""
+        return self._d / self.dt
+
+    def _drop_velocity(self, mask: np.ndarray) -> None:
+        self._d[mask] = 0.0
+
+    @property
+    def x_est(self) -> np.ndarray:
+        """(M, 2) float: smoothed position ``x_s`` in pixels."""
+        return self._x
 
 
 def _mahalanobis_sq(centre: np.ndarray, var: np.ndarray, det: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import Tracker2D
+from mocap.trackers.base import Tracker2D, check_positive
 from mocap.trackers.registry import register_tracker
 
 
@@ -78,6 +78,13 @@ def _systematic_flat(weights: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.repeat(np.arange(M * N), counts)
 
 
+def _particle_count(n_particles: int) -> int:
+    """The particles per label of a CONDENSATION tracker (this one and seed 000's), checked."""
+    if int(n_particles) != n_particles or n_particles < 2:
+        raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}")
+    return int(n_particles)
+
+
 @register_tracker("condensation_drift")
 class DriftCondensationTracker(Tracker2D):
     """CONDENSATION particle filter for M markers with a drift velocity and a diffusion
@@ -125,12 +132,9 @@ class DriftCondensationTracker(Tracker2D):
         **base_params,
     ) -> None:
         super().__init__(initial_xy, dt, rng, **base_params)
-        if int(n_particles) != n_particles or n_particles < 2:
-            raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}")
-        for key, val in (("diffusion_std_px", diffusion_std_px), ("observation_std_px", observation_std_px), ("initial_spread_px", initial_spread_px)):
-            if not val > 0:
-                raise ValueError(f"{key} must be positive, got {val!r}")
-        self.n_particles = N = int(n_particles)
+        N = _particle_count(n_particles)
+        check_positive(diffusion_std_px=diffusion_std_px, observation_std_px=observation_std_px, initial_spread_px=initial_spread_px)
+        self.n_particles = N
         self.diffusion_std_px = float(diffusion_std_px)
         self.speed_diffusion_gain = float(speed_diffusion_gain)
         self.observation_std_px = float(observation_std_px)

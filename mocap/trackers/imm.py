@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import LOST, Tracker2D
+from mocap.trackers.base import LOST, Tracker2D, check_positive
 from mocap.trackers.registry import register_tracker
 
 MODELS = ("smooth", "agile", "manoeuvre")
@@ -133,10 +133,8 @@ class IMMTracker(Tracker2D):
         **base_params,
     ) -> None:
         super().__init__(initial_xy, dt, rng, **base_params)
-        for key, val in (("measurement_std_px", measurement_std_px), ("initial_position_std_px", initial_position_std_px),
-                         ("initial_velocity_std", initial_velocity_std), ("merge_distance_px", merge_distance_px)):
-            if not val > 0:
-                raise ValueError(f"{key} must be positive, got {val!r}")
+        check_positive(measurement_std_px=measurement_std_px, initial_position_std_px=initial_position_std_px,
+                       initial_velocity_std=initial_velocity_std, merge_distance_px=merge_distance_px)
         noise = (smooth_accel_std, agile_accel_std, agile_speed_gain, manoeuvre_velocity_std, manoeuvre_speed_gain)
         if min(noise) < 0:
             raise ValueError(f"process-noise standard deviations and gains must be >= 0, got {noise}")

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import Tracker2D
+from mocap.trackers.base import Tracker2D, check_positive
 from mocap.trackers.registry import register_tracker
 
 
@@ -73,9 +73,8 @@ class KalmanTracker(Tracker2D):
         **base_params,
     ) -> None:
         super().__init__(initial_xy, dt, rng, **base_params)
-        for key, val in (("measurement_std_px", measurement_std_px), ("initial_position_std_px", initial_position_std_px), ("initial_velocity_std", initial_velocity_std)):
-            if not val > 0:
-                raise ValueError(f"{key} must be positive, got {val!r}")
+        check_positive(measurement_std_px=measurement_std_px, initial_position_std_px=initial_position_std_px,
+                       initial_velocity_std=initial_velocity_std)
         if accel_std < 0 or speed_accel_gain < 0:
             raise ValueError(f"accel_std and speed_accel_gain must be >= 0, got {accel_std!r}, {speed_accel_gain!r}")
         self.r = float(measurement_std_px) ** 2  # px**2, R = r I

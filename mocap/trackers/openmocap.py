@@ -43,8 +43,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import Tracker2D
-from mocap.trackers.condensation import _systematic_flat
+from mocap.trackers.base import AlphaBetaFilter, Tracker2D, check_positive
+from mocap.trackers.condensation import _particle_count, _systematic_flat
 from mocap.trackers.registry import register_tracker
 
 #: ``max_coast_frames`` of the OpenMoCap trackers: a label is never declared lost.
@@ -59,7 +59,7 @@ def _image_size(image_size_px: tuple[float, float]) -> tuple[float, float]:
 
 
 @register_tracker("alpha_beta")
-class AlphaBetaTracker(Tracker2D):
+class AlphaBetaTracker(AlphaBetaFilter):
     """Seed 000's alpha-beta filter with OpenMoCap's fixed search circle.
 
     Parameters
@@ -84,8 +84,6 @@ class AlphaBetaTracker(Tracker2D):
         (see :class:`~mocap.trackers.base.Tracker2D`).
     """
 
-    _sets_own_gate = True
-
     def __init__(
         self,
         initial_xy: np.ndarray,
@@ -100,27 +98,11 @@ class AlphaBetaTracker(Tracker2D):
     ) -> None:
         base_params.setdefault("max_gate_px", max(120.0, float(search_radius_px)))
         super().__init__(initial_xy, dt, rng, max_coast_frames=max_coast_frames, **base_params)
-        if not (0.0 < alpha <= 2.0 and 0.0 <= beta <= 4.0):
-            raise ValueError(f"alpha-beta gains out of the stable range: alpha={alpha!r} (0, 2], beta={beta!r} [0, 4]")
-        if not search_radius_px > 0:
-            raise ValueError(f"search_radius_px must be positive, got {search_radius_px!r}")
-        self.alpha = float(alpha)
-        self.beta = float(beta)
+        self._start_filter(initial_xy, alpha, beta)  # the velocity d is in px/frame
+        check_positive(search_radius_px=search_radius_px)
         self.search_radius_px = float(search_radius_px)
-        self._x = np.array(initial_xy, dtype=np.float64)  # (M, 2) position, px
-        self._d = np.zeros_like(self._x)  # (M, 2) velocity, px/frame
         self._radius = np.full(self.n_markers, self.search_radius_px)
         self._set_radius(self._radius)
-
-    @property
-    def x(self) -> np.ndarray:
-        """(M, 2) float: position in pixels (smoothed ``x_s`` after an update)."""
-        return self._x
-
-    @property
-    def v(self) -> np.ndarray:
-        """(M, 2) float: smoothed velocity ``v_s`` in px/s."""
-        return self._d / self.dt
 
     def _predict(self) -> None:
         self._x = self._centre = self._x + self._d  # x_p = x_s + v_s (one frame); v_p = v_s
@@ -137,14 +119,6 @@ class AlphaBetaTracker(Tracker2D):
         self._x = self._x.copy()
         self._x[mask] = xy[mask]
         self._d[mask] = 0.0
-
-    def _drop_velocity(self, mask: np.ndarray) -> None:
-        self._d[mask] = 0.0
-
-    @property
-    def x_est(self) -> np.ndarray:
-        """(M, 2) float: smoothed position ``x_s`` in pixels."""
-        return self._x
 
 
 @register_tracker("kalman_openmocap")
@@ -348,11 +322,9 @@ class CondensationTracker(Tracker2D):
     ) -> None:
         base_params.setdefault("max_gate_px", 1e6)
         super().__init__(initial_xy, dt, rng, max_coast_frames=max_coast_frames, **base_params)
-        if int(n_particles) != n_particles or n_particles < 2:
-            raise ValueError(f"n_particles must be an integer >= 2, got {n_particles!r}")
-        if not diffusion_fraction > 0:
-            raise ValueError(f"diffusion_fraction must be positive, got {diffusion_fraction!r}")
-        self.n_particles = N = int(n_particles)
+        N = _particle_count(n_particles)
+        check_positive(diffusion_fraction=diffusion_fraction)
+        self.n_particles = N
         self.image_size_px = _image_size(image_size_px)
         self.diffusion_fraction = float(diffusion_fraction)
         self._half_width = np.array(self.image_size_px) * self.diffusion_fraction  # (2,) px
