@@ -44,6 +44,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from mocap.calibration import Calibration
+from mocap.errors import require_finite
 from mocap.triangulation import pixels_to_normalized, triangulate_normalized
 from mocap.types import Detections
 
@@ -76,10 +77,7 @@ class CorrespondenceParams:
     rank_residual_px: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("epipolar_px", "support_px", "max_residual_px", "min_depth_m", "rank_residual_px"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"CorrespondenceParams.{name}={v!r}: must be a finite number > 0")
+        require_finite(self, ("epipolar_px", "support_px", "max_residual_px", "min_depth_m", "rank_residual_px"))
 
 
 @dataclass

@@ -5,6 +5,7 @@ The CLIs turn any :class:`MocapInputError` into one line on stderr and exit code
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 
@@ -26,3 +27,26 @@ class InputFileError(MocapInputError):
         self.path, self.problem, self.fix, self.field = Path(path), problem, fix, field
         where = f"{self.path}" + (f": field '{field}'" if field else "")
         super().__init__(f"{where}: {problem}; {fix}")
+
+
+_OWN_VALUE = object()
+
+
+def require(ok: bool, owner: object, field: str, fix: str, *, value: object = _OWN_VALUE,
+            error: type[Exception] = ValueError) -> None:
+    """The check of every settings dataclass's fields: unless ``ok``, raise ``error`` with
+    ``"<Class>.<field>=<value>: <fix>"`` (the value as ``repr``; by default the owner's
+    attribute ``field``)."""
+    if not ok:
+        shown = getattr(owner, field) if value is _OWN_VALUE else value
+        raise error(f"{type(owner).__name__}.{field}={shown!r}: {fix}")
+
+
+def require_finite(owner: object, fields: tuple[str, ...], *, positive: bool = True,
+                   error: type[Exception] = ValueError) -> None:
+    """:func:`require` each of ``fields`` to be a finite number, ``> 0`` (``positive``) or ``>= 0``."""
+    for name in fields:
+        v = float(getattr(owner, name))
+        ok = math.isfinite(v) and (v > 0 if positive else v >= 0)
+        require(ok, owner, name, "must be a finite number > 0" if positive else "must be a finite number >= 0",
+                value=v, error=error)

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from mocap.calibration import Calibration
+from mocap.errors import require
 from mocap.label_template import LabelTemplate, load_template, save_template
 from mocap.triangulation import triangulate
 from mocap.types import Detections
@@ -132,20 +133,16 @@ class LabelInitParams:
     pair_ambiguity: float = 0.25
 
     def __post_init__(self) -> None:
-        def need(cond: bool, field: str, fix: str) -> None:
-            if not cond:
-                raise ValueError(f"LabelInitParams.{field}={getattr(self, field)!r}: {fix}")
-
-        need(0 < self.heading_step_deg <= 90, "heading_step_deg", "must be in (0, 90] degrees")
-        need(self.search_radius_m >= 0, "search_radius_m", "must be >= 0 m")
-        need(self.position_step_m > 0, "position_step_m", "must be > 0 m")
-        need(len(self.scales) >= 1 and all(0.5 <= s <= 2.0 for s in self.scales), "scales", "give factors in [0.5, 2]")
-        need(self.slack_m > 0, "slack_m", "must be > 0 m")
-        need(self.min_gate_px > 0, "min_gate_px", "must be > 0 px")
-        need(self.refine_top >= 1, "refine_top", "must be >= 1")
-        need(self.max_residual_px > 0, "max_residual_px", "must be > 0 px")
-        need(self.ambiguity_margin_px >= 0, "ambiguity_margin_px", "must be >= 0 px")
-        need(0 <= self.pair_ambiguity < 1, "pair_ambiguity", "must be in [0, 1)")
+        require(0 < self.heading_step_deg <= 90, self, "heading_step_deg", "must be in (0, 90] degrees")
+        require(self.search_radius_m >= 0, self, "search_radius_m", "must be >= 0 m")
+        require(self.position_step_m > 0, self, "position_step_m", "must be > 0 m")
+        require(len(self.scales) >= 1 and all(0.5 <= s <= 2.0 for s in self.scales), self, "scales", "give factors in [0.5, 2]")
+        require(self.slack_m > 0, self, "slack_m", "must be > 0 m")
+        require(self.min_gate_px > 0, self, "min_gate_px", "must be > 0 px")
+        require(self.refine_top >= 1, self, "refine_top", "must be >= 1")
+        require(self.max_residual_px > 0, self, "max_residual_px", "must be > 0 px")
+        require(self.ambiguity_margin_px >= 0, self, "ambiguity_margin_px", "must be >= 0 px")
+        require(0 <= self.pair_ambiguity < 1, self, "pair_ambiguity", "must be in [0, 1)")
 
 
 @dataclass

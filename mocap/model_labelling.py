@@ -41,6 +41,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap.correspondence import UnlabelledPoints
+from mocap.errors import require, require_finite
 
 __all__ = [
     "ModelLabellingParams",
@@ -83,16 +84,10 @@ class ModelLabellingParams:
     min_explained: float = 0.8
 
     def __post_init__(self) -> None:
-        for name in ("wide_gate_m", "tight_gate_m", "min_explained"):
-            v = float(getattr(self, name))
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"ModelLabellingParams.{name}={v!r}: must be a finite number > 0")
-        if self.tight_gate_m > self.wide_gate_m:
-            raise ValueError("ModelLabellingParams: tight_gate_m must not exceed wide_gate_m")
-        if int(self.init_frames) < 1:
-            raise ValueError(f"ModelLabellingParams.init_frames={self.init_frames!r}: must be >= 1")
-        if int(self.init_budget) < int(self.init_frames):
-            raise ValueError(f"ModelLabellingParams.init_budget={self.init_budget!r}: must be >= init_frames ({self.init_frames})")
+        require_finite(self, ("wide_gate_m", "tight_gate_m", "min_explained"))
+        require(self.tight_gate_m <= self.wide_gate_m, self, "tight_gate_m", f"must not exceed wide_gate_m ({self.wide_gate_m})")
+        require(int(self.init_frames) >= 1, self, "init_frames", "must be >= 1")
+        require(int(self.init_budget) >= int(self.init_frames), self, "init_budget", f"must be >= init_frames ({self.init_frames})")
 
 
 @dataclass

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap.calibration import Calibration
+from mocap.errors import require
 from mocap.smoothing import butterworth_filtfilt, fill_gaps, rts_smooth
 from mocap.triangulation import (
     camera_normalized,
@@ -112,27 +113,23 @@ class ReconstructionParams:
     crowded_weight: float = 0.1
 
     def __post_init__(self) -> None:
-        def need(cond: bool, field: str, value, fix: str) -> None:
-            if not cond:
-                raise ValueError(f"ReconstructionParams.{field}={value!r}: {fix}")
-
-        need(self.epipolar_threshold_px > 0, "epipolar_threshold_px", self.epipolar_threshold_px, "must be > 0 pixels (inf disables)")
-        need(self.max_residual_px > 0, "max_residual_px", self.max_residual_px, "must be > 0 pixels (inf disables)")
-        need(self.refine_iterations >= 0, "refine_iterations", self.refine_iterations, "must be >= 0")
-        need(self.min_views >= 2, "min_views", self.min_views, "triangulation needs >= 2 views")
-        need(0 <= self.coasting_weight <= 1, "coasting_weight", self.coasting_weight, "must be in [0, 1]")
-        need(self.smoothing in ("none", "butterworth", "rts"), "smoothing", self.smoothing, "use 'none', 'butterworth' or 'rts'")
-        need(self.cutoff_hz > 0, "cutoff_hz", self.cutoff_hz, "must be > 0 Hz")
-        need(self.butter_order >= 1, "butter_order", self.butter_order, "must be >= 1")
-        need(self.rts_accel_std > 0, "rts_accel_std", self.rts_accel_std, "must be > 0 m/s^2")
-        need(self.rts_meas_std_m > 0, "rts_meas_std_m", self.rts_meas_std_m, "must be > 0 m")
-        need(self.max_gap_frames >= 0, "max_gap_frames", self.max_gap_frames, "must be >= 0 frames")
-        need(self.gap_fill in ("auto", "cubic", "lsq"), "gap_fill", self.gap_fill, "use 'auto', 'cubic' or 'lsq'")
-        need(self.gap_context_frames >= 1, "gap_context_frames", self.gap_context_frames, "must be >= 1 frame")
-        need(self.relabel_gate_px is None or self.relabel_gate_px >= 0, "relabel_gate_px", self.relabel_gate_px, "must be None or >= 0 pixels (0 disables)")
-        need(self.relabel_sweeps >= 1, "relabel_sweeps", self.relabel_sweeps, "must be >= 1")
-        need(self.crowd_px >= 0, "crowd_px", self.crowd_px, "must be >= 0 pixels (0 disables)")
-        need(0 < self.crowded_weight <= 1, "crowded_weight", self.crowded_weight, "must be in (0, 1]")
+        require(self.epipolar_threshold_px > 0, self, "epipolar_threshold_px", "must be > 0 pixels (inf disables)")
+        require(self.max_residual_px > 0, self, "max_residual_px", "must be > 0 pixels (inf disables)")
+        require(self.refine_iterations >= 0, self, "refine_iterations", "must be >= 0")
+        require(self.min_views >= 2, self, "min_views", "triangulation needs >= 2 views")
+        require(0 <= self.coasting_weight <= 1, self, "coasting_weight", "must be in [0, 1]")
+        require(self.smoothing in ("none", "butterworth", "rts"), self, "smoothing", "use 'none', 'butterworth' or 'rts'")
+        require(self.cutoff_hz > 0, self, "cutoff_hz", "must be > 0 Hz")
+        require(self.butter_order >= 1, self, "butter_order", "must be >= 1")
+        require(self.rts_accel_std > 0, self, "rts_accel_std", "must be > 0 m/s^2")
+        require(self.rts_meas_std_m > 0, self, "rts_meas_std_m", "must be > 0 m")
+        require(self.max_gap_frames >= 0, self, "max_gap_frames", "must be >= 0 frames")
+        require(self.gap_fill in ("auto", "cubic", "lsq"), self, "gap_fill", "use 'auto', 'cubic' or 'lsq'")
+        require(self.gap_context_frames >= 1, self, "gap_context_frames", "must be >= 1 frame")
+        require(self.relabel_gate_px is None or self.relabel_gate_px >= 0, self, "relabel_gate_px", "must be None or >= 0 pixels (0 disables)")
+        require(self.relabel_sweeps >= 1, self, "relabel_sweeps", "must be >= 1")
+        require(self.crowd_px >= 0, self, "crowd_px", "must be >= 0 pixels (0 disables)")
+        require(0 < self.crowded_weight <= 1, self, "crowded_weight", "must be in (0, 1]")
 
 
 def crowded_views(p2ds: np.ndarray, xyz: np.ndarray, calibration: Calibration, crowd_px: float) -> np.ndarray:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from mocap.errors import MocapInputError
+from mocap.errors import MocapInputError, require, require_finite
 from mocap.skeleton_cold_start import cold_start, cold_start_tables
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
@@ -86,12 +86,9 @@ class IKParams:
 
     def __post_init__(self) -> None:
         for name in ("max_iterations", "cold_start_iterations", "min_markers"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"IKParams.{name} must be >= 1, got {getattr(self, name)!r}")
-        for name in ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m"):
-            value = float(getattr(self, name))
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"IKParams.{name} must be a finite number >= 0, got {value!r}")
+            require(int(getattr(self, name)) >= 1, self, name, "must be >= 1")
+        require_finite(self, ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m"),
+                       positive=False)
 
 
 @dataclass(frozen=True, eq=False)

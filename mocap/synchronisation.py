@@ -34,7 +34,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment, minimize
 
 from mocap.calibration import Calibration
-from mocap.errors import InputFileError, MocapInputError
+from mocap.errors import InputFileError, MocapInputError, require, require_finite
 from mocap.types import Detections
 
 __all__ = ["SyncParams", "ClockSync", "LinkedDetections", "duplicated_frames", "estimate_sync", "resample_detections",
@@ -66,14 +66,10 @@ class SyncParams:
     min_overlap: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("max_offset_s", "coarse_step_s", "link_gate_px", "epipolar_scale_px", "fine_scale_px", "min_overlap"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise MocapInputError(f"SyncParams.{name} = {v!r}: must be a finite number > 0")
-        if not (np.isfinite(self.max_drift_ppm) and self.max_drift_ppm >= 0):
-            raise MocapInputError(f"SyncParams.max_drift_ppm = {self.max_drift_ppm!r}: must be finite and >= 0")
-        if self.max_frames < 10:
-            raise MocapInputError(f"SyncParams.max_frames = {self.max_frames!r}: use 10 or more")
+        require_finite(self, ("max_offset_s", "coarse_step_s", "link_gate_px", "epipolar_scale_px", "fine_scale_px", "min_overlap"),
+                       error=MocapInputError)
+        require_finite(self, ("max_drift_ppm",), positive=False, error=MocapInputError)
+        require(self.max_frames >= 10, self, "max_frames", "use 10 or more", error=MocapInputError)
 
 
 @dataclass(frozen=True)

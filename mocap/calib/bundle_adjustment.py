@@ -24,6 +24,7 @@ from scipy.optimize import least_squares
 
 from mocap.calib.errors import BundleAdjustmentError
 from mocap.calib.geometry import matrix_to_rotvec, project_camera_points, rotvec_to_matrix, transform_points
+from mocap.errors import require
 
 _WAND_PAIRS = np.array([[0, 1], [1, 2], [0, 2]])
 
@@ -62,8 +63,8 @@ class BundleAdjustmentOptions:
     wand_weight_px_per_mm: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
-            raise ValueError(f"BundleAdjustmentOptions.loss must be one of linear, soft_l1, huber, cauchy, arctan; got {self.loss!r}")
+        require(self.loss in ("linear", "soft_l1", "huber", "cauchy", "arctan"), self, "loss",
+                "must be one of linear, soft_l1, huber, cauchy, arctan")
 
 
 @dataclass

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from mocap.calib.errors import BoardNotFoundError, CalibrationError, DegenerateViewsError, ViewFailure
+from mocap.errors import require
 
 
 @dataclass(frozen=True)
@@ -56,10 +57,8 @@ class IntrinsicsOptions:
     min_tilt_spread_deg: float = 5.0
 
     def __post_init__(self) -> None:
-        if self.k3 not in ("auto", "free", "fixed"):
-            raise ValueError(f"IntrinsicsOptions.k3 must be 'auto', 'free' or 'fixed', got {self.k3!r}")
-        if self.min_views < 3:
-            raise ValueError(f"IntrinsicsOptions.min_views must be >= 3 (Zhang's method), got {self.min_views}")
+        require(self.k3 in ("auto", "free", "fixed"), self, "k3", "must be 'auto', 'free' or 'fixed'")
+        require(self.min_views >= 3, self, "min_views", "must be >= 3 (Zhang's method)")
 
     @property
     def cv_flags(self) -> int:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from mocap.errors import require
+
 __all__ = ["DetectionParams"]
 
 # Defaults that differ between the two modes (a field left at None takes these).
@@ -120,34 +122,30 @@ class DetectionParams:
     mog2_var_threshold: float = 16.0
 
     def __post_init__(self) -> None:
-        def need(cond: bool, field: str, fix: str) -> None:
-            if not cond:
-                raise ValueError(f"DetectionParams.{field}={getattr(self, field)!r}: {fix}")
-
         def opt(field: str) -> float:
             v = getattr(self, field)
             return 1.0 if v is None else v  # None is valid (the mode's default)
 
-        need(self.mode in ("ir", "visible"), "mode", "use 'ir' or 'visible'")
-        need(self.threshold in ("sigma", "otsu", "fixed"), "threshold", "use 'sigma', 'otsu' or 'fixed'")
-        need(opt("k_sigma") > 0, "k_sigma", "must be > 0 (or None: the mode's default)")
-        need(opt("min_contrast") >= 0, "min_contrast", "must be >= 0 grey levels (or None)")
-        need(0 < self.fixed_threshold < 255, "fixed_threshold", "must be in (0, 255)")
-        need(self.tophat_radius_px >= 1, "tophat_radius_px", "must be >= 1 pixel")
-        need(self.background_cell_px >= 1, "background_cell_px", "must be >= 1 pixel")
-        need(self.background_cells >= 1 and self.background_cells % 2 == 1, "background_cells", "must be an odd number >= 1")
-        need(1 <= opt("min_area_px") <= self.max_area_px, "min_area_px", f"need 1 <= min_area_px <= max_area_px ({self.max_area_px})")
-        need(0 <= opt("min_fill_ratio") <= 1, "min_fill_ratio", "must be in [0, 1]")
-        need(opt("max_elongation") >= 1, "max_elongation", "must be >= 1")
-        need(self.dilate_px >= 0, "dilate_px", "must be >= 0")
-        need(self.response in ("srgb", "linear"), "response", "use 'srgb' (webcams) or 'linear' (raw levels)")
-        need(0 <= self.peak_fraction < 1, "peak_fraction", "must be in [0, 1)")
-        need(self.small_peak_factor >= 0, "small_peak_factor", "must be >= 0 (0: no blob under min_area_px)")
-        need(0 <= self.small_area_fraction <= 1, "small_area_fraction", "must be in [0, 1]")
-        need(self.ring_contrast >= 0, "ring_contrast", "must be >= 0 grey levels")
-        need(0 < self.shading_weight <= 1, "shading_weight", "must be in (0, 1]")
-        need(self.background_threshold >= 0, "background_threshold", "must be >= 0")
-        need(self.mog2_history >= 1, "mog2_history", "must be >= 1")
+        require(self.mode in ("ir", "visible"), self, "mode", "use 'ir' or 'visible'")
+        require(self.threshold in ("sigma", "otsu", "fixed"), self, "threshold", "use 'sigma', 'otsu' or 'fixed'")
+        require(opt("k_sigma") > 0, self, "k_sigma", "must be > 0 (or None: the mode's default)")
+        require(opt("min_contrast") >= 0, self, "min_contrast", "must be >= 0 grey levels (or None)")
+        require(0 < self.fixed_threshold < 255, self, "fixed_threshold", "must be in (0, 255)")
+        require(self.tophat_radius_px >= 1, self, "tophat_radius_px", "must be >= 1 pixel")
+        require(self.background_cell_px >= 1, self, "background_cell_px", "must be >= 1 pixel")
+        require(self.background_cells >= 1 and self.background_cells % 2 == 1, self, "background_cells", "must be an odd number >= 1")
+        require(1 <= opt("min_area_px") <= self.max_area_px, self, "min_area_px", f"need 1 <= min_area_px <= max_area_px ({self.max_area_px})")
+        require(0 <= opt("min_fill_ratio") <= 1, self, "min_fill_ratio", "must be in [0, 1]")
+        require(opt("max_elongation") >= 1, self, "max_elongation", "must be >= 1")
+        require(self.dilate_px >= 0, self, "dilate_px", "must be >= 0")
+        require(self.response in ("srgb", "linear"), self, "response", "use 'srgb' (webcams) or 'linear' (raw levels)")
+        require(0 <= self.peak_fraction < 1, self, "peak_fraction", "must be in [0, 1)")
+        require(self.small_peak_factor >= 0, self, "small_peak_factor", "must be >= 0 (0: no blob under min_area_px)")
+        require(0 <= self.small_area_fraction <= 1, self, "small_area_fraction", "must be in [0, 1]")
+        require(self.ring_contrast >= 0, self, "ring_contrast", "must be >= 0 grey levels")
+        require(0 < self.shading_weight <= 1, self, "shading_weight", "must be in (0, 1]")
+        require(self.background_threshold >= 0, self, "background_threshold", "must be >= 0")
+        require(self.mog2_history >= 1, self, "mog2_history", "must be >= 1")
 
     def resolved(self, field: str) -> float:
         """The value of a mode-dependent field (its mode default when left at None)."""

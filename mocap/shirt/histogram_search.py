@@ -32,7 +32,7 @@ import cv2
 import numba
 import numpy as np
 
-from mocap.errors import MocapInputError
+from mocap.errors import MocapInputError, require
 
 __all__ = ["HistogramSearchParams", "ShirtLocation", "scales_px", "chromaticity_bins", "search_shirt", "naive_search"]
 
@@ -68,12 +68,11 @@ class HistogramSearchParams:
     min_brightness: int = 40
 
     def __post_init__(self) -> None:
-        if self.stride_px % _REDUCE or self.stride_px <= 0:
-            raise MocapInputError(f"HistogramSearchParams.stride_px = {self.stride_px}; use a positive multiple of {_REDUCE}")
-        if not self.scales or any(not (0.0 < s <= 1.0) for s in self.scales):
-            raise MocapInputError(f"HistogramSearchParams.scales = {self.scales}; give fractions of the image height in (0, 1]")
-        if not (0.0 < self.tau <= 1.0):
-            raise MocapInputError(f"HistogramSearchParams.tau = {self.tau}; use a value in (0, 1]")
+        require(self.stride_px % _REDUCE == 0 and self.stride_px > 0, self, "stride_px", f"use a positive multiple of {_REDUCE}",
+                error=MocapInputError)
+        require(bool(self.scales) and all(0.0 < s <= 1.0 for s in self.scales), self, "scales",
+                "give fractions of the image height in (0, 1]", error=MocapInputError)
+        require(0.0 < self.tau <= 1.0, self, "tau", "use a value in (0, 1]", error=MocapInputError)
 
 
 def scales_px(params: HistogramSearchParams, height: int) -> list[int]:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from mocap.errors import MocapInputError
+from mocap.errors import MocapInputError, require
 from mocap.shirt.background import BackgroundParams
 from mocap.shirt.classify import Classification
 from mocap.shirt.histogram_search import HistogramSearchParams, ShirtLocation
@@ -182,10 +182,12 @@ class ShirtPipelineParams:
     keep_classification: bool = False
 
     def __post_init__(self) -> None:
-        if self.wb_every < 1 or self.distance_reduce < 1 or self.render_size < 8 * self.distance_reduce:
-            raise MocapInputError(f"ShirtPipelineParams: wb_every and distance_reduce must be at least 1 and render_size at least 8 cells; got {self}")
-        if self.crop_factor <= 0 or self.work_size < 16 or self.wb_size < 8 or self.neighbours < 1:
-            raise MocapInputError(f"ShirtPipelineParams: crop_factor, work_size (>= 16), wb_size (>= 8) and neighbours (>= 1) must be positive; got {self}")
+        least = {"wb_every": 1, "distance_reduce": 1, "render_size": 8 * self.distance_reduce, "work_size": 16, "wb_size": 8,
+                 "neighbours": 1}
+        for name, n in least.items():
+            cells = " (8 cells of distance_reduce pixels)" if name == "render_size" else ""
+            require(getattr(self, name) >= n, self, name, f"must be at least {n}{cells}", error=MocapInputError)
+        require(not self.crop_factor <= 0, self, "crop_factor", "must be positive", error=MocapInputError)  # (NaN passes, as before)
 
     def baseline(self) -> "ShirtPipelineParams":
         """The baseline's settings: no pose prior, no adaptive white balance."""
