@@ -59,6 +59,22 @@ def _check_name(name: str, kind: str) -> None:
         raise ValueError(f"{kind} name {name!r}: use letters, digits, '_' or '-'")
 
 
+def _check_prop(prop, kind: str, vectors: tuple[str, ...], box: str | None = None) -> None:
+    """The checks every prop shares, in this order: its name; for a box (``box``: what the
+    message adds about the axes) a positive ``size_m``; its 3-vector fields ``vectors`` and
+    ``rgb``, stored as tuples of floats."""
+    _check_name(prop.name, kind)
+    what = f"{kind} {prop.name!r}"
+    if box is not None:
+        size = _vec3(prop.size_m, f"{what} size_m")
+        if min(size) <= 0:
+            raise ValueError(f"{what}: size_m must be positive{box}, got {size}")
+        object.__setattr__(prop, "size_m", size)
+    for name in vectors:
+        object.__setattr__(prop, name, _vec3(getattr(prop, name), f"{what} {name}"))
+    object.__setattr__(prop, "rgb", _rgb(prop.rgb, f"{what} rgb"))
+
+
 @dataclass(frozen=True)
 class BallProp:
     """A ball thrown by physics: free body, bounces off the floor, the body and props.
@@ -88,10 +104,7 @@ class BallProp:
     restitution: float = 0.7
 
     def __post_init__(self) -> None:
-        _check_name(self.name, "BallProp")
-        object.__setattr__(self, "position", _vec3(self.position, f"BallProp {self.name!r} position"))
-        object.__setattr__(self, "velocity", _vec3(self.velocity, f"BallProp {self.name!r} velocity"))
-        object.__setattr__(self, "rgb", _rgb(self.rgb, f"BallProp {self.name!r} rgb"))
+        _check_prop(self, "BallProp", ("position", "velocity"))
         if not 0.005 <= self.radius_m <= 2.0:
             raise ValueError(f"BallProp {self.name!r}: radius_m = {self.radius_m} is out of range (0.005 .. 2 m)")
         if not self.mass_kg > 0:
@@ -156,13 +169,7 @@ class BarrierProp:
     rgb: tuple[float, float, float] = (0.25, 0.3, 0.5)
 
     def __post_init__(self) -> None:
-        _check_name(self.name, "BarrierProp")
-        size = _vec3(self.size_m, f"BarrierProp {self.name!r} size_m")
-        if min(size) <= 0:
-            raise ValueError(f"BarrierProp {self.name!r}: size_m must be positive (thickness, width, height), got {size}")
-        object.__setattr__(self, "size_m", size)
-        object.__setattr__(self, "position", _vec3(self.position, f"BarrierProp {self.name!r} position"))
-        object.__setattr__(self, "rgb", _rgb(self.rgb, f"BarrierProp {self.name!r} rgb"))
+        _check_prop(self, "BarrierProp", ("position",), box=" (thickness, width, height)")
         object.__setattr__(self, "yaw_deg", float(self.yaw_deg))
 
     def pose(self) -> np.ndarray:
@@ -220,14 +227,7 @@ class MovingProp:
     mass_kg: float = 5.0
 
     def __post_init__(self) -> None:
-        _check_name(self.name, "MovingProp")
-        size = _vec3(self.size_m, f"MovingProp {self.name!r} size_m")
-        if min(size) <= 0:
-            raise ValueError(f"MovingProp {self.name!r}: size_m must be positive, got {size}")
-        object.__setattr__(self, "size_m", size)
-        object.__setattr__(self, "start", _vec3(self.start, f"MovingProp {self.name!r} start"))
-        object.__setattr__(self, "velocity", _vec3(self.velocity, f"MovingProp {self.name!r} velocity"))
-        object.__setattr__(self, "rgb", _rgb(self.rgb, f"MovingProp {self.name!r} rgb"))
+        _check_prop(self, "MovingProp", ("start", "velocity"), box="")
         if not self.mass_kg > 0:
             raise ValueError(f"MovingProp {self.name!r}: mass_kg must be positive, got {self.mass_kg}")
 
