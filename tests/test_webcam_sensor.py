@@ -92,16 +92,17 @@ def _moving_points(t: np.ndarray) -> np.ndarray:
     return base[None] + off[:, None]
 
 
-def _rolling_observations(cal: Calibration, times: np.ndarray, readout: float):
-    """Each camera's blobs where a rolling shutter shows the markers (fixed point of the row-time model)."""
+def _rolling_observations(cal: Calibration, times: np.ndarray, readout: float, points=_moving_points):
+    """Each camera's blobs where a rolling shutter shows the markers ``points(t)`` (fixed point of
+    the row-time model)."""
     out = []
     for cam in cal:
         frames = []
         for t in times:
-            uv = cam.project(_moving_points(np.array([t]))[0])
+            uv = cam.project(points(np.array([t]))[0])
             for _ in range(6):
                 tt = t + uv[:, 1] / cam.size[1] * readout
-                uv = np.array([cam.project(_moving_points(np.array([ti]))[0][m:m + 1])[0] for m, ti in enumerate(tt)])
+                uv = np.array([cam.project(points(np.array([ti]))[0][m:m + 1])[0] for m, ti in enumerate(tt)])
             frames.append(Detections(uv, np.full(3, 20.0), np.full(3, 200.0)))
         out.append(frames)
     return out
@@ -141,16 +142,7 @@ def test_the_refinement_follows_a_fast_reversal_with_a_cubic():
 
     cal, readout = _rig(), 0.025
     times = np.arange(30) / 30.0 + np.random.default_rng(0).normal(0.0, 5e-4, 30)
-    raw = []
-    for cam in cal:  # where the row-time model shows each marker (fixed point, as _rolling_observations)
-        frames = []
-        for t in times:
-            uv = cam.project(fast(np.array([t]))[0])
-            for _ in range(6):
-                tt = t + uv[:, 1] / cam.size[1] * readout
-                uv = np.array([cam.project(fast(np.array([ti]))[0][m:m + 1])[0] for m, ti in enumerate(tt)])
-            frames.append(Detections(uv, np.full(3, 20.0), np.full(3, 200.0)))
-        raw.append(frames)
+    raw = _rolling_observations(cal, times, readout, fast)
     truth = [np.stack([cam.project(p) for p in fast(times)]) for cam in cal]
     first = correct_rolling_shutter(raw, [times, times], readout, 480)
     traj = type("T", (), {"xyz": fast(times)})()
