@@ -148,6 +148,14 @@ def _classify_by_cost(shape: tuple[int, int], idx: np.ndarray, x: np.ndarray, co
     return _result(shape, idx, best, score, threshold)
 
 
+def _pixels_and_distances(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
+                          pixels: tuple[np.ndarray, np.ndarray] | None,
+                          distances: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The foreground pixels ``(idx, x)`` and their ``model.distances`` with ``W``, unless the caller has them."""
+    idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
+    return idx, x, (model.distances(x, W) if distances is None else distances)
+
+
 def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, foreground: np.ndarray | None,
                       threshold: float = 3.0, distances: np.ndarray | None = None,
                       other: ColourModel | None = None, pixels: tuple[np.ndarray, np.ndarray] | None = None,
@@ -171,8 +179,7 @@ def classify_gaussian(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray,
     other_min : (n,) float, optional
         :func:`other_distance` of those pixels with ``W``, when the caller has it.
     """
-    idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
-    D = model.distances(x, W) if distances is None else distances
+    idx, x, D = _pixels_and_distances(linear_rgb, model, W, foreground, pixels, distances)
     return _classify_by_cost(linear_rgb.shape[:2], idx, x, D, threshold, other, W, other_min)
 
 
@@ -257,13 +264,10 @@ def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.nda
         ``C = 6 / s``.
     other : ColourModel, optional
         Not-shirt colours (see :func:`classify_gaussian`); they carry no pose prior.
-    pixels : ((n,) int, (n, 3) float32), optional
-        ``foreground_pixels(linear_rgb, foreground)`` when the caller has it.
-    other_min : (n,) float, optional
-        :func:`other_distance` of those pixels with ``W``, when the caller has it.
+    linear_rgb, W, foreground, distances, pixels, other_min
+        As :func:`classify_gaussian`.
     """
-    idx, x = foreground_pixels(linear_rgb, foreground) if pixels is None else pixels
-    D = model.distances(x, W) if distances is None else distances
+    idx, x, D = _pixels_and_distances(linear_rgb, model, W, foreground, pixels, distances)
     total = D + np.minimum(np.asarray(colour_distance_px, np.float32).T, 1e6) * np.float32(prior_weight)
     return _classify_by_cost(linear_rgb.shape[:2], idx, x, total, threshold, other, W, other_min)
 

@@ -328,15 +328,9 @@ class ShirtTracker:
                 # the centroids are far from the pose: the previous pose (which the motion prior
                 # holds on to) is probably wrong, e.g. while the tracker is still locking on
                 # from a far-off first blend; loosen that prior and split and solve again
-                loose = [(q_b, self.priors.blend_std * p.recovery_blend_scale)]
-                if self.q_prev is not None:
-                    loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
-                for _ in range(p.recovery_passes):
-                    cons2 = self.reassign(res.q, est.cameras, lin)
-                    if not len(cons2):
-                        break
-                    res = self.ik.solve(res.q, cons2, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
-            q = res.q
+                q = self._loose_solve(res.q, est, lin, sil, self._loose_priors(q_b), p.recovery_passes)
+            else:
+                q = res.q
             if p.pose_prior and p.lock_on_yaws and self._frames == 0:
                 q = self._root_hypotheses(q, est, lin, sil)
             if p.pose_prior and p.arm_hypotheses:
@@ -359,6 +353,26 @@ class ShirtTracker:
             est.cameras = []
         return est
 
+    def _loose_priors(self, q_blend: np.ndarray, previous: bool = True) -> list:
+        """The blended pose's prior, and the previous pose's (``previous``, when there is one),
+        loosened by ``recovery_blend_scale`` and ``recovery_motion_scale``."""
+        p = self.params
+        loose = [(q_blend, self.priors.blend_std * p.recovery_blend_scale)]
+        if previous and self.q_prev is not None:
+            loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
+        return loose
+
+    def _loose_solve(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, loose: list, passes: int) -> np.ndarray:
+        """Up to ``passes`` times: split the colours into patches with pose ``q`` and solve from it
+        with the priors ``loose`` and twice the IK iterations; stops when no patch is left. The last pose."""
+        p = self.params
+        for _ in range(passes):
+            cons = self.reassign(q, est.cameras, lin)
+            if not len(cons):
+                break
+            q = self.ik.solve(q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
+        return q
+
     def _root_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict) -> np.ndarray:
         """Pose ``q`` and the same pose upright (the world's z up) at ``lock_on_yaws`` headings, each split
         into patches and solved again with loose priors; the one that agrees best with step 1.
@@ -371,20 +385,12 @@ class ShirtTracker:
         """
         p = self.params
         seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
-        loose = [(est.q_blend, self.priors.blend_std * p.recovery_blend_scale)]
+        loose = self._loose_priors(est.q_blend, previous=False)
         starts = [q]
         for yaw in np.linspace(-np.pi, np.pi, p.lock_on_yaws, endpoint=False):
             c, s_ = np.cos(yaw), np.sin(yaw)
             starts.append(self.kin.make_q(np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]), q[:3], q[7:]))
-        solved = []
-        for q0 in starts:
-            res_q = q0
-            for _ in range(p.correspondence_passes):
-                cons = self.reassign(res_q, est.cameras, lin)
-                if not len(cons):
-                    break
-                res_q = self.ik.solve(res_q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
-            solved.append(res_q)
+        solved = [self._loose_solve(q0, est, lin, sil, loose, p.correspondence_passes) for q0 in starts]
         scores, _ = self._agreement(solved, est.cameras, seen)
         return solved[int(np.argmax(scores))]
 
@@ -449,15 +455,7 @@ class ShirtTracker:
         # better (skipping it lowered the CI office run's assisted-correct rate 0.40 -> 0.39)
         if start is None:
             start = q
-        loose = [(est.q_blend, self.priors.blend_std * p.recovery_blend_scale)]
-        if self.q_prev is not None:
-            loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
-        res_q = start
-        for _ in range(p.correspondence_passes):
-            cons = self.reassign(res_q, est.cameras, lin)
-            if not len(cons):
-                break
-            res_q = self.ik.solve(res_q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
+        res_q = self._loose_solve(start, est, lin, sil, self._loose_priors(est.q_blend), p.correspondence_passes)
         score = self._agreement([res_q], est.cameras, seen)[0][0]
         return res_q if score > score_q + p.hypothesis_margin else q
 
