@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import tomllib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -33,6 +34,18 @@ import numpy as np
 import tomli_w
 
 from mocap.errors import CalibrationFileError
+
+
+@contextmanager
+def opencv_yaml_writer(path: Path, tmp: Path) -> Iterator[cv2.FileStorage]:
+    """An OpenCV ``FileStorage`` writing ``tmp``, renamed to ``path`` once the block has
+    written everything (an error leaves ``path`` as it was)."""
+    fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+    try:
+        yield fs
+    finally:
+        fs.release()
+    os.replace(tmp, path)
 
 
 def _as_matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -248,9 +261,7 @@ class Calibration:
     def save_opencv_yaml(self, path: str | os.PathLike) -> None:
         """Write OpenCV ``FileStorage`` YAML (atomically: temp file then rename)."""
         path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.yml")
-        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-        try:
+        with opencv_yaml_writer(path, path.with_name(path.name + ".tmp.yml")) as fs:
             fs.write("camera_count", len(self.cameras))
             for i, c in enumerate(self.cameras):
                 fs.write(f"camera_{i}_name", c.name)
@@ -259,9 +270,6 @@ class Calibration:
                 fs.write(f"camera_{i}_dist", c.dist.reshape(1, 5))
                 fs.write(f"camera_{i}_R", c.R)
                 fs.write(f"camera_{i}_t", c.t.reshape(3, 1))
-        finally:
-            fs.release()
-        os.replace(tmp, path)
 
     @classmethod
     def load_opencv_yaml(cls, path: str | os.PathLike) -> "Calibration":

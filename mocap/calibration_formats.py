@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 import tomli_w
 
-from mocap.calibration import Calibration, Camera
+from mocap.calibration import Calibration, Camera, opencv_yaml_writer
 from mocap.errors import CalibrationFileError
 
 CalibrationFormat = Literal["opencv", "anipose", "pose2sim", "easymocap"]
@@ -107,9 +107,7 @@ def _save_easymocap(calibration: Calibration, folder: Path) -> list[Path]:
     paths = []
     for kind in ("intri", "extri"):
         path = folder / f"{kind}.yml"
-        tmp = folder / f"{kind}.tmp.yml"
-        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-        try:
+        with opencv_yaml_writer(path, folder / f"{kind}.tmp.yml") as fs:
             _write_names(fs, calibration.names)
             for c in calibration:
                 if kind == "intri":
@@ -121,9 +119,6 @@ def _save_easymocap(calibration: Calibration, folder: Path) -> list[Path]:
                     fs.write(f"R_{c.name}", c.rvec.reshape(3, 1))
                     fs.write(f"Rot_{c.name}", c.R)
                     fs.write(f"T_{c.name}", c.t.reshape(3, 1))
-        finally:
-            fs.release()
-        os.replace(tmp, path)
         paths.append(path)
     return paths
 
