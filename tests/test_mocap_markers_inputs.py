@@ -1,7 +1,11 @@
 """`mocap markers` refuses inputs it would misread, with one line and exit code 2, and writes
 nothing: videos at another size than their calibration, videos of unequal length, a bad frame
 rate, videos without a single marker, an --out that is a file or a folder of the user's, and a
-calibration file that is not one."""
+calibration file that is not one.
+
+Each case runs the command's typer app in-process (``typer.testing.CliRunner``, as
+``tests/fuzz_inputs.py`` does: the same code path without a new interpreter's imports, about
+3 CPU-s a case); the first case also runs as a real ``python -m mocap.cli`` process."""
 
 from __future__ import annotations
 
@@ -44,10 +48,20 @@ def inputs(tmp_path):
     return tmp_path, cal, tmpl
 
 
-def _markers(videos, cal, tmpl, out, *extra) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "mocap.cli", "markers", *map(str, videos), "--calibration", str(cal),
-           "--template", str(tmpl), "--out", str(out), *extra]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+def _markers(videos, cal, tmpl, out, *extra, process: bool = False) -> subprocess.CompletedProcess:
+    """``mocap markers`` on the inputs: in-process through its typer app, or (``process``) as
+    a new ``python -m mocap.cli`` process."""
+    args = ["markers", *map(str, videos), "--calibration", str(cal), "--template", str(tmpl), "--out", str(out), *extra]
+    if process:
+        return subprocess.run([sys.executable, "-m", "mocap.cli", *args], capture_output=True, text=True, timeout=120)
+    from typer.testing import CliRunner
+
+    from mocap.cli.app import app
+
+    r = CliRunner().invoke(app, args, catch_exceptions=True)
+    # an exception other than the exit is what a process would have printed as a traceback
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    return subprocess.CompletedProcess(args, r.exit_code, r.stdout, r.stderr)
 
 
 def _one_clear_line(r: subprocess.CompletedProcess, *words: str) -> None:
@@ -68,9 +82,10 @@ def _nothing_written(d: Path, out: Path) -> None:
 def test_video_of_another_size_than_its_calibration(inputs) -> None:
     d, cal, tmpl = inputs
     vids = [_video(d / "cam0.avi", 5), _video(d / "cam1.avi", 5, size=(2 * W, 2 * H)), _video(d / "cam2.avi", 5)]
-    r = _markers(vids, cal, tmpl, d / "cap")
-    _one_clear_line(r, "cam1.avi", "128x96", "64x48")
-    _nothing_written(d, d / "cap")
+    for process in (False, True):  # the real command line once
+        r = _markers(vids, cal, tmpl, d / "cap", process=process)
+        _one_clear_line(r, "cam1.avi", "128x96", "64x48")
+        _nothing_written(d, d / "cap")
 
 
 def test_videos_of_unequal_length(inputs) -> None:
