@@ -100,7 +100,7 @@ def test_unsynchronised_take_is_synchronised_from_the_markers():
     """A short webcams_unsynced take (offsets up to +-500 ms, drift up to +-100 ppm): the run
     recovers the offsets within 1 ms RMS of the truth, and its markers are far better than
     with frames paired by index."""
-    sc = load_scenario("scenarios/webcams_unsynced.toml", overrides={"duration_s": 3.0})
+    sc = load_scenario("scenarios/webcams_unsynced.toml", overrides={"duration_s": 2.5})
     m = run_scenario(sc, write_outputs=False).metrics
     assert m["sync.true_offset_max_ms"] > 300.0
     assert m["sync.offset_error_ms"] < 1.0, m["sync.offset_error_ms"]
