@@ -174,13 +174,16 @@ main()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-@pytest.mark.parametrize("where", ["pipeline", "exports"])
+@pytest.mark.parametrize("where, sig", [("pipeline", signal.SIGTERM), ("exports", signal.SIGTERM), ("exports", signal.SIGKILL)],
+                         ids=["pipeline-15", "exports-15", "exports-9"])
 def test_a_signal_after_the_render_keeps_the_earlier_result_and_leaves_nothing(tmp_path, finished, where, sig):
-    """SIGTERM or SIGKILL while the marker pipeline runs or the exports are written (the
-    frames are rendered and the ground truth is in the partial folder): the earlier result
-    at ``--out`` is untouched byte for byte, no process of the run is left, and no partial
-    folder is left after the next run (at once for SIGTERM)."""
+    """SIGTERM while the marker pipeline runs or the exports are written, or SIGKILL while the
+    exports are written (the frames are rendered and the ground truth is in the partial
+    folder): the earlier result at ``--out`` is untouched byte for byte, no process of the run
+    is left, and no partial folder is left after the next run (at once for SIGTERM). SIGKILL
+    runs no code of the process, whatever stage it is in: the exports stage leaves the fullest
+    stale partial folder for the next run to remove (SIGKILL while rendering, with the video
+    writers as children, is the test above)."""
     out = _with_earlier_result(tmp_path, finished)
     before = _tree(out)
     flag = tmp_path / "in_stage"
