@@ -34,6 +34,8 @@ This is what commercial systems call model-based auto-labelling. No first-frame 
 
 from __future__ import annotations
 
+import time
+
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
@@ -106,6 +108,9 @@ class PointLabels:
         Frame where labelling started (the most confident global fit).
     reinitialisations : int
         Frames where the global search ran again after a loss.
+    start_search_ms : float
+        Time spent choosing the start (step 1), once per take; a long take does not pay it
+        again per frame.
     """
 
     labels: list[str]
@@ -113,6 +118,7 @@ class PointLabels:
     predicted: np.ndarray
     start_frame: int
     reinitialisations: int
+    start_search_ms: float = 0.0
 
 
 # --------------------------------------------------------------------------- assignment
@@ -296,6 +302,7 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
             return None, np.full(M, -1, dtype=np.intp), 0.0
         return model.initialise(frames[f].xyz, trusted[f])
 
+    t_start = time.perf_counter()
     counts = np.array([int(t.sum()) for t in trusted])
     best = (-1, None, None, -np.inf)
     for f in start_candidates(F, p.init_frames, p.init_budget):
@@ -315,8 +322,9 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
                 best = (int(f), state, idx, score)
                 break
     start, state0, idx0, _ = best
+    start_ms = (time.perf_counter() - t_start) * 1e3
     if state0 is None:
-        return PointLabels(list(model.labels), index, predicted, 0, 0)
+        return PointLabels(list(model.labels), index, predicted, 0, 0, start_ms)
     index[start] = idx0
     predicted[start] = model.markers(state0)
     reinit = 0
@@ -353,7 +361,7 @@ def label_points(frames: Sequence[UnlabelledPoints], model: MarkerModel, params:
         run(start, -1, next_state, back_history, max(int((index[start + 1] >= 0).sum()), 1))
     else:
         run(start - 1, -1, state0, [point_positions(frames[start].xyz, idx0)], n0)
-    return PointLabels(list(model.labels), index, predicted, start, reinit)
+    return PointLabels(list(model.labels), index, predicted, start, reinit, start_ms)
 
 
 def point_positions(points: np.ndarray, idx: np.ndarray) -> np.ndarray:
