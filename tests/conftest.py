@@ -8,6 +8,11 @@ the folder is not there.
 ``pytest -m "not slow"`` runs the fast subset for the inner loop (under a minute on two
 cores); CI runs everything. A test is marked ``slow`` when it takes more than a few
 seconds (an end-to-end render and run, a real capture through the whole pipeline).
+
+Under ``pytest -n 2`` (pytest-xdist) a module's tests go to one worker together
+(``--dist loadfile`` in pyproject.toml), so a module-scoped fixture (one render or run that
+several tests check) is computed once, not once on each worker; and the slow modules are
+collected first, so that the workers start on them and the fast modules fill in at the end.
 """
 
 from __future__ import annotations
@@ -54,3 +59,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.path.name in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
+    # The slow modules first; a stable sort, so each module's tests stay together and in order.
+    items.sort(key=lambda item: item.path.name not in SLOW_MODULES)
