@@ -37,11 +37,15 @@ _KNOWN_GAP = pytest.mark.xfail(reason="known gap (issue 12): markers on several 
                                "glove, arm clusters) or on soft tissue seed wrong neighbour groups", strict=False)
 GAPPED = [
     pytest.param("BTS.c3d", 0, 675, marks=_KNOWN_GAP),                           # measured 52 mm, 26/30 gaps, 2 swaps
-    pytest.param("kinematics_basket_sprint.c3d", 600, 360, marks=_KNOWN_GAP),    # 6.1 mm, 1 swap
+    # frames 720-960 hold the same swap (max error 73.8 mm) as 600-960 did, in 9 CPU-s rather than 13 (2026-11-27:
+    # 3.7 mm, 1 swap; 600-960: 6.1 mm, 1 swap); 600-840 pass
+    pytest.param("kinematics_basket_sprint.c3d", 720, 240, marks=_KNOWN_GAP),
     # the first 20 frames (0.29 s) fail the same way as the whole take, at a twelfth of the time (2026-11-27:
     # 216 mm, 4/6 gaps, 33 swaps in 7 CPU-s; frames 0-700: 228 mm, 48/224 gaps, 317 swaps in 91 CPU-s); 10 frames pass
     pytest.param("kinematics_racing_propulsion.c3d", 0, 20, marks=_KNOWN_GAP),
-    pytest.param("ADemo1_rewrite_c3d_pc_float.c3d", 0, 512, marks=_KNOWN_GAP),   # 3.0 mm, 19/55 gaps, 14 swaps
+    # the first 256 frames: 11 CPU-s rather than 19 (2026-11-27: 1.9 mm, 23/44 gaps, 3 swaps; all 512: 1.7 mm,
+    # 42/54 gaps, 1 swap)
+    pytest.param("ADemo1_rewrite_c3d_pc_float.c3d", 0, 256, marks=_KNOWN_GAP),
     ("Res16bits.c3d", 0, 100),                                                   # 0.57 mm, 1/1, 0 swaps
 ]
 
@@ -171,16 +175,17 @@ def test_assignment_gives_one_point_per_label() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known gap (issue 12): 25/40 gaps re-labelled on this rig, 0 swaps, 0.73 mm; markers hidden "
-                   "in all but one camera for long runs come back as two-view points the cluster model does not yet trust",
-                   strict=False)
+@pytest.mark.xfail(reason="known gap (issue 12): 18/22 gaps re-labelled in the first 200 frames on this rig, 1 swap, "
+                   "2.6 mm (all 340: 29/40, 1 swap, 1.8 mm); markers hidden in all but one camera for long runs come back "
+                   "as two-view points the cluster model does not yet trust", strict=False)
 def test_qualisys_with_seeded_gaps() -> None:
     traj = read_c3d(C3D_DIR / "Qualisys.c3d")
-    xyz = _seeded_gaps(traj.xyz, 0.2, np.random.default_rng(5))
+    # the gaps seeded over the whole capture, its first 200 frames labelled (16 CPU-s rather than 26)
+    xyz = _seeded_gaps(traj.xyz, 0.2, np.random.default_rng(5))[:200]
     r = run_model_labelling(list(traj.labels), xyz, traj.rate_hz, seed=2024)
     print(f"Qualisys with seeded gaps: rmse {r['rmse_mm']:.3f} mm, gaps recovered {r['recovered']}/{r['gaps']}, "
           f"swaps {r['swaps']}, reconstructed {r['reconstructed']:.3f}")
-    assert r["gaps"] >= 30
+    assert r["gaps"] >= 20
     assert r["recovered"] == r["gaps"]
     assert r["swaps"] == 0
     assert r["rmse_mm"] <= 1.0
