@@ -42,6 +42,7 @@ import math
 import time
 
 import numpy as np
+from scipy.linalg import solveh_banded
 
 from mocap.calibration import Calibration
 from mocap.errors import MocapInputError
@@ -307,9 +308,21 @@ def triangulate_row_times(J: np.ndarray, w: np.ndarray, A: np.ndarray, b: np.nda
     h += prior_weight**2 * np.where(ok[:, None], prior, 0.0)
     if smooth > 0:
         G += smooth**2 * _difference_gram(ok, 4)[:, :, None, None] * np.eye(3)
-    X = np.linalg.solve(G.transpose(0, 2, 1, 3).reshape(3 * F, 3 * F), h.reshape(3 * F)).reshape(F, 3)
+    X = _solve_banded(G.transpose(0, 2, 1, 3).reshape(3 * F, 3 * F), h.reshape(3 * F)).reshape(F, 3)
     X[~ok] = np.nan
     return X
+
+
+def _solve_banded(G: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``G^-1 h`` for a symmetric positive definite ``G (n, n)`` whose entries lie near the
+    diagonal (a view couples the frames of its stencil only): a banded Cholesky solve, linear in
+    ``n`` (a dense solve of the 360 unknowns of a 4 s take cost ~0.1 s each)."""
+    i, j = np.nonzero(G)
+    u = int((j - i).max()) if len(i) else 0
+    ab = np.zeros((u + 1, len(G)))
+    for d in range(u + 1):
+        ab[u - d, d:] = np.diagonal(G, d)
+    return solveh_banded(ab, h)
 
 
 def _difference_gram(ok: np.ndarray, order: int) -> np.ndarray:
