@@ -20,7 +20,10 @@ from typing import Literal
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.signal import butter, filtfilt
+
+# scipy.signal is imported by butterworth_filtfilt when it runs, not here: importing it brings
+# scipy.stats too (about 1.7 CPU-s of a process's start-up on a busy 2-core machine), and
+# every marker capture imports this module while only smoothing="butterworth" filters.
 
 __all__ = ["finite_runs", "butterworth_filtfilt", "rts_smooth", "fill_gaps"]
 
@@ -77,6 +80,8 @@ def butterworth_filtfilt(
         raise ValueError(f"cutoff_hz={cutoff_hz} must be in (0, rate_hz/2 = {0.5 * rate_hz}); lower the cut-off or check the frame rate")
     if order < 1:
         raise ValueError(f"order={order} must be >= 1")
+    from scipy.signal import butter, filtfilt
+
     b, a = butter(order, cutoff_hz / (0.5 * rate_hz))
     series, shape = _series_view(x)
     out = series.copy()

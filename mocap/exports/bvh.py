@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
@@ -79,6 +78,8 @@ def write_bvh(
     lines = ["HIERARCHY", *_bvh_hierarchy(fit.tree, channel_names, _bvh_end_sites(fit.tree, subject), P)]
     lines += ["MOTION", f"Frames: {len(fit.times)}", f"Frame Time: {1.0 / rate:.8f}"]
     motion = np.concatenate(columns, axis=1)
+    import pandas as pd  # here, not at the top: see mocap/exports/trc.py
+
     body = pd.DataFrame(motion).to_csv(sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
     with _atomic_target(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n" + body)

@@ -6,7 +6,6 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from mocap.errors import InputFileError
 from mocap.exports._common import _atomic_target
@@ -26,6 +25,8 @@ def write_csv(path: str | os.PathLike, traj: Trajectories) -> Path:
     """
     path = Path(path)
     F, M = traj.xyz.shape[:2]
+    import pandas as pd  # here, not at the top: see mocap/exports/trc.py
+
     coords = pd.DataFrame(
         traj.xyz.reshape(F, 3 * M) * 1000.0,
         columns=[f"{label}_{a}_mm" for label in traj.labels for a in "xyz"],
@@ -40,6 +41,8 @@ def write_csv(path: str | os.PathLike, traj: Trajectories) -> Path:
 def read_csv(path: str | os.PathLike) -> Trajectories:
     """Read a CSV written by :func:`write_csv` back into trajectories (metres)."""
     path = Path(path)
+    import pandas as pd  # here, not at the top: see mocap/exports/trc.py
+
     try:
         table = pd.read_csv(path)
     except (OSError, pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:

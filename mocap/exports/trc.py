@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pandas as pd
 
 from mocap.errors import InputFileError, MocapInputError
 from mocap.exports._common import (
@@ -66,6 +65,10 @@ def write_trc(
         "\t\t" + "\t".join(f"{a}{i + 1}" for i in range(M) for a in "XYZ"),
         "",
     ]
+    # pandas here, not at the top of the module: a run imports mocap.exports whether or not it writes
+    # anything, and pandas is about 0.7 CPU-s of a process's start-up on a busy 2-core machine
+    import pandas as pd
+
     table = pd.DataFrame(xyz.reshape(F, 3 * M) * 1000.0)
     table.insert(0, "time", np.asarray(traj.times, dtype=np.float64))
     table.insert(0, "frame", np.arange(1, F + 1))

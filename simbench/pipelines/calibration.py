@@ -45,7 +45,6 @@ from typing import Iterator
 
 import cv2
 import numpy as np
-from matplotlib.figure import Figure
 
 from eval.calibration_metrics import align_worlds, compare_calibrations
 from mocap.calib.board_detection import DetectionSettings
@@ -244,6 +243,10 @@ def plot_residuals(board: dict[str, tuple[np.ndarray, np.ndarray]], wand: dict[s
     """Per camera: residual vectors over the image (magnified) and the residual scatter (px)."""
     names = list(board)
     C = len(names)
+    # matplotlib here, not at the top: every run imports this module, and a run that writes no
+    # report (a sweep's or a check's) would pay its import (about 1 CPU-s on a busy 2-core machine)
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(3.6 * C, 6.4))
     axes = fig.subplots(2, C, squeeze=False)
     allerr = np.concatenate([board[n][1] for n in names] + [wand[n][1] for n in names if n in wand])

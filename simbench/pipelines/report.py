@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eval import marker_metrics, plots
+from eval import marker_metrics
 
 
 def reprojection_residuals_by_camera(capture, calibration) -> dict[str, np.ndarray]:
@@ -37,6 +37,8 @@ def write_run_report(out: Path, scenario, gt, capture, metrics: dict[str, float]
     ``calibration`` is the one the pipeline used (default: the exact one): reprojection
     residuals are what the pipeline itself would see, so they use its calibration.
     """
+    from eval import plots  # matplotlib: here, not at the top (see simbench/pipelines/calibration.py)
+
     figs = out / "plots"
     figs.mkdir(exist_ok=True)
     parts = [f"# simbench run: {scenario.name}", "", scenario.description or "", "",

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from matplotlib.figure import Figure
 
 from eval import shirt_metrics
 from mocap.calibration import Calibration
@@ -267,6 +266,8 @@ def _plots(out: Path, times: np.ndarray, gt_angle: np.ndarray, full_angle: np.nd
     figs = out / "plots"
     figs.mkdir(parents=True, exist_ok=True)
     names = []
+    from matplotlib.figure import Figure  # here, not at the top: see simbench/pipelines/calibration.py
+
     fig = Figure(figsize=(9, 6))
     ax0, ax1 = fig.subplots(2, 1, sharex=True)
     ax0.plot(times, gt_angle, "k-", lw=2, label="ground truth")

@@ -31,14 +31,19 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import TYPE_CHECKING, Iterable, Iterator
 
 import duckdb
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from simbench.output_dir import pid_alive, remove_stale_partials
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    # pandas is imported where a table is built (duckdb's .df() imports it itself): a sweep's or a
+    # check's worker processes import this module for RunRecord and never build one (pandas is
+    # about 0.7 CPU-s of their start-up on a busy 2-core machine)
+    import pandas as pd
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -382,6 +387,8 @@ class ResultsDB:
         """One row per run: run columns, one column per factor, one per metric."""
         runs = self.runs(sweep)
         long = self.metrics_long(sweep)
+        import pandas as pd
+
         wide = long.pivot(index="run_id", columns="metric", values="value") if len(long) else pd.DataFrame(index=pd.Index([], name="run_id"))
         factors = pd.DataFrame([dict(f) for f in runs["factors"]], index=runs["run_id"])
         base = runs.set_index("run_id")[["sweep", "run_index", "scenario", "status", "error", "duration_s", "out_dir"]]
@@ -400,6 +407,8 @@ class ResultsDB:
         files = sorted(self.store.frames_dir.glob("*.parquet")) if self.store.frames_dir.is_dir() else []
         files = [f for f in files if ids is None or f.stem in ids]
         if not files:
+            import pandas as pd
+
             return pd.DataFrame(columns=["run_id", "frame", "time_s", "marker", "error_mm", "views_visible", "reconstructed", "filled"])
         con = duckdb.connect()
         try:
