@@ -40,7 +40,8 @@ def local(tmp_path_factory):
     d = tmp_path_factory.mktemp("sweep")
     (d / "tiny.toml").write_text(SWEEP)
     sw = load_sweep(d / "tiny.toml")
-    summary = run_sweep(sw, d / "local" / "results.duckdb", workers=2, outputs=True)
+    # one spawned worker: a second would only add its start-up (imports, GL context), about 5 CPU-s
+    summary = run_sweep(sw, d / "local" / "results.duckdb", workers=1, outputs=True)
     return sw, summary, ResultsDB(d / "local" / "results.duckdb")
 
 
@@ -91,7 +92,9 @@ def test_local_cluster_gives_identical_metrics(local, tmp_path):
     from distributed import LocalCluster
 
     sw, _, db = local
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    # one worker process: the runs still go to the cluster's process (checked below); a second one
+    # would only add its start-up
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         summary = run_sweep(sw, tmp_path / "results.duckdb", scheduler=cluster.scheduler_address, outputs=False)
     assert (summary.ran, summary.failed) == (3, 1)
     dask_db = ResultsDB(tmp_path / "results.duckdb")
