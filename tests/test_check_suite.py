@@ -15,12 +15,12 @@ from typer.testing import CliRunner
 from simbench.cli.app import app
 
 
-def _check(tmp_path, *extra: str, workers: int = 2) -> subprocess.CompletedProcess:
+def _check(tmp_path, *extra: str) -> subprocess.CompletedProcess:
     """``simbench check --suite ci`` through the command's typer app in this process (its runs go to
-    ``workers`` spawned worker processes, as from the command line; a new interpreter for the
-    command itself would only add its imports, about 5 CPU-s)."""
+    one spawned worker process, as from the command line with ``-j 1``; a new interpreter for the
+    command itself would only add its imports, about 5 CPU-s, and a second worker its start-up)."""
     args = ["check", "--suite", "ci", "--baseline", "scenarios/baselines/ci.json", "--junit", str(tmp_path / "junit.xml"),
-            "-j", str(workers), *extra]
+            "-j", "1", *extra]
     r = CliRunner().invoke(app, args, catch_exceptions=True)
     assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
     return subprocess.CompletedProcess(args, r.exit_code, r.stdout, r.stderr)
@@ -37,7 +37,7 @@ def test_ci_suite_passes_on_the_committed_baseline(tmp_path):
 
 def test_check_fails_with_a_table_when_a_scenario_gets_worse(tmp_path):
     # 4 seeds against the baseline's 32: the smallest one-sided p is 1/C(36, 4) = 1.7e-5, far below alpha / 9 metrics
-    r = _check(tmp_path, "--only", "blur_zigzag", "--set", "sensor.exposure_ms=33", "--seeds", "4", workers=1)
+    r = _check(tmp_path, "--only", "blur_zigzag", "--set", "sensor.exposure_ms=33", "--seeds", "4")
     assert r.returncode == 1, r.stdout + r.stderr
     out = r.stdout
     assert "FAIL suite ci" in out
