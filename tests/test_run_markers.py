@@ -46,19 +46,22 @@ def test_run_writes_metrics_report_and_exports_that_match(quickstart_run):
 
 
 def test_mocap_markers_cli_on_the_rendered_videos(quickstart_run, tmp_path):
-    """The real-video entry point reads the MP4s simbench wrote and recovers the markers."""
-    import subprocess
-    import sys
+    """The real-video entry point reads the MP4s simbench wrote and recovers the markers. Through
+    the command's typer app in this process (a new interpreter would only add its imports, about
+    4 CPU-s; tests/test_mocap_markers_inputs.py runs ``python -m mocap.cli markers`` as a process)."""
+    from typer.testing import CliRunner
 
+    from mocap.cli.app import app
     from simbench.stage.ground_truth import load_ground_truth
 
     result, out = quickstart_run
-    r = subprocess.run([sys.executable, "-m", "mocap.cli", "markers", *sorted(str(p) for p in (out / "videos").glob("*.mp4")),
-                        "--calibration", str(out / "calibration_ground_truth.yml"),
-                        "--template", str(out / "exports" / "label_template.csv"),
-                        "--subject", str(out / "exports" / "subject.toml"), "--out", str(tmp_path / "cap")],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    r = CliRunner().invoke(app, ["markers", *sorted(str(p) for p in (out / "videos").glob("*.mp4")),
+                                 "--calibration", str(out / "calibration_ground_truth.yml"),
+                                 "--template", str(out / "exports" / "label_template.csv"),
+                                 "--subject", str(out / "exports" / "subject.toml"), "--out", str(tmp_path / "cap")],
+                           catch_exceptions=True)
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    assert r.exit_code == 0, r.stderr
     traj = read_c3d(tmp_path / "cap" / "markers.c3d")
     gt = load_ground_truth(out)
     idx = [traj.labels.index(n) for n in gt.marker_names]
