@@ -17,9 +17,20 @@ collected first, so that the workers start on them and the fast modules fill in 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+
+# OpenBLAS on one thread in the test processes and everything they start (spawned workers,
+# subprocesses and Dask workers inherit the variable); set before numpy loads here. Under
+# ``-n 2`` both cores already run a test process each, and each process's OpenBLAS threads then
+# wait for a core, spinning: tests/test_shirt_search.py and five other BLAS-heavy modules took 41.9
+# CPU-s with OpenBLAS's default threads on the shared 2-core machine and 28.4 with one (the shirt
+# pose database's randomised SVD: 3 QR factorisations, 4.7 CPU-s on two threads, 0.7 on one;
+# simbench.pipelines.calibration.single_threaded_blas is the same finding in the bundle
+# adjustment). A value the caller set is kept.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 #: ``../shared/data`` relative to the repository.
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
