@@ -26,17 +26,31 @@ class Detections:
         Blob area in pixels.
     intensity : (n,) float
         Mean grey level of the blob (0-255).
+    limb_dir : (n, 2) float or None
+        Visible-light detector: unit image direction towards the light of the image's
+        markers (one direction shared by the image's blobs; see
+        :func:`mocap.detection.visible.lit_limbs`). None when not measured.
+    limb_dist : (n,) float or None
+        Distance (px) from ``xy`` along ``limb_dir`` to the half-maximum edge of the blob's
+        lit limb; NaN where not measured. Given the marker's image radius ``rho`` (px),
+        ``xy + (limb_dist - rho) * limb_dir`` is a centroid free of the shading's pull
+        (:func:`mocap.marker_pipeline.limb_centroids`).
     """
 
     xy: np.ndarray
     area: np.ndarray
     intensity: np.ndarray
+    limb_dir: np.ndarray | None = None
+    limb_dist: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
         n = len(self.xy)
         self.area = np.asarray(self.area, dtype=np.float64).reshape(n)
         self.intensity = np.asarray(self.intensity, dtype=np.float64).reshape(n)
+        if self.limb_dir is not None:
+            self.limb_dir = np.asarray(self.limb_dir, dtype=np.float64).reshape(n, 2)
+            self.limb_dist = np.asarray(self.limb_dist, dtype=np.float64).reshape(n)
 
     def __len__(self) -> int:
         return len(self.xy)

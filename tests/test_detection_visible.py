@@ -8,9 +8,14 @@ recall, false blobs and centroid error against the renderer's ground truth.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+
+from mocap.calibration import Calibration, Camera
+from mocap.marker_pipeline import limb_centroids
+from mocap.types import Trajectories
 
 from mocap.detection import DetectionParams, detect_markers
 from mocap.detection.blobs import noise_std
@@ -160,6 +165,52 @@ def test_sphere_lit_from_above_centroid_less_biased_than_intensity_weights() -> 
     assert bias[1.0][1] < -0.3                        # measured -0.45 px (towards the light)
     assert abs(bias[0.3][1]) < 0.4 * abs(bias[1.0][1])  # measured -0.18 px
     assert abs(bias[0.3][0]) < 0.05
+
+
+def test_lit_limb_at_the_marker_image_radius_removes_most_of_the_shading_pull() -> None:
+    """14 mm spheres 1.9-2.1 m from a camera (image radius 1.7-1.8 px), lit from above, optics
+    blur 0.4 px: the centroid sits 0.5-0.6 px towards the light. The lit limb's edge, once the
+    marker's distance gives its image radius (:func:`limb_centroids`), puts it within 0.25 px
+    (measured: -0.59 -> -0.16 px); across the light nothing moves."""
+    rng = np.random.default_rng(24)
+    truth = grid(rng)
+    f, r = 500.0, 0.007
+    depth = rng.uniform(1.9, 2.1, len(truth))
+    cam = Camera("c0", (W, H), np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]]))
+    xyz = np.column_stack([(truth[:, 0] - W / 2) / f * depth, (truth[:, 1] - H / 2) / f * depth, depth])
+    img = np.full((H, W), 30.0)
+    for (x, y), z in zip(truth, depth):
+        img += 100.0 / 1.15 * pixel_average(lit_sphere(x, y, f * r / z, 0.15))
+    img = to_u8(cv2.GaussianBlur(img, (0, 0), 0.4), rng)
+    det = detect_markers(img, DetectionParams(mode="visible"))
+    assert len(det) == len(truth)
+    assert np.allclose(det.limb_dir, [0.0, -1.0], atol=0.1)  # the image's light: up
+    traj = Trajectories([f"m{i}" for i in range(len(xyz))], xyz[None], np.zeros(1))
+    refined, moved = limb_centroids([[det]], traj, Calibration((cam,)), r)
+    assert moved == len(truth)
+    _, j = cKDTree(det.xy).query(truth)
+    old = (det.xy[j] - truth).mean(axis=0)
+    new = (refined[0][0].xy[j] - truth).mean(axis=0)
+    assert old[1] < -0.45                                  # measured -0.59
+    assert abs(new[1]) < 0.25 and abs(new[1]) < 0.35 * abs(old[1])  # measured -0.16
+    assert abs(new[0]) < 0.05 and abs(new[0] - old[0]) < 0.03
+    # Blobs with no reconstructed marker near them keep their centroids.
+    far = Trajectories(traj.labels, xyz[None] + [0.05, 0.0, 0.0], np.zeros(1))
+    kept, moved = limb_centroids([[det]], far, Calibration((cam,)), r)
+    assert moved == 0 and np.array_equal(kept[0][0].xy, det.xy)
+
+
+def test_evenly_lit_discs_have_no_light_direction() -> None:
+    """Discs with no shading (a ring light on the camera): their edges' steepness points
+    nowhere in particular, so no lit limb is measured and nothing will move them."""
+    rng = np.random.default_rng(5)
+    truth = grid(rng)
+    img = np.full((H, W), 30.0)
+    for x, y in truth:
+        img += 80.0 * pixel_average(disc(x, y, 1.6))
+    det = detect_markers(to_u8(cv2.GaussianBlur(img, (0, 0), 0.4), rng), DetectionParams(mode="visible"))
+    assert len(det) == len(truth)
+    assert np.isnan(det.limb_dist).all()
 
 
 def test_ir_lit_wall_is_background_not_noise_blobs() -> None:

@@ -14,6 +14,7 @@ from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
+from simbench.scenes.markers import MARKER_RADIUS_M
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
@@ -53,6 +54,7 @@ def pipeline_params(sc: Scenario) -> MarkerPipelineParams:
         tracker=cfg.tracker,
         reconstruction=ReconstructionParams(smoothing=cfg.smoothing, max_gap_frames=cfg.max_gap_frames),
         solve_skeleton=cfg.solve_skeleton,
+        marker_radius_m=MARKER_RADIUS_M,  # the bench's spheres; a user gives their markers' size
     )
 
 
