@@ -42,6 +42,9 @@ def markers(
     readout_ms: float = typer.Option(0.0, "--readout-ms", help="rolling shutter: the cameras read their rows out over "
                                      "this long (ms; row y of H at the frame's time + y / H * readout); each blob is "
                                      "moved to its frame's timestamp before triangulation. 0: global shutter"),
+    marker_diameter_mm: float = typer.Option(0.0, "--marker-diameter-mm", help="the markers' diameter (mm). With "
+                                             "--mode visible, blobs of markers lit from one side are re-centred on "
+                                             "their lit limb at the image radius this gives. 0: unknown"),
 ) -> None:
     """Detect, label, track and triangulate markers; write C3D, TRC, CSV (and BVH with --subject).
 
@@ -67,13 +70,17 @@ def markers(
     if not (np.isfinite(readout_ms) and 0.0 <= readout_ms <= 1000.0 / fps):
         raise InputFileError(Path("--readout-ms"), f"value {readout_ms!r}",
                              f"give the rows' readout time in ms, 0 (global shutter) to the frame interval {1000.0 / fps:.2f}")
+    if not (np.isfinite(marker_diameter_mm) and 0.0 <= marker_diameter_mm <= 1000.0):
+        raise InputFileError(Path("--marker-diameter-mm"), f"value {marker_diameter_mm!r}",
+                             "give the markers' diameter in mm (e.g. 14), or 0 if unknown")
     out_dir = Path(out)
     subj = None
     if subject is not None:
         from mocap.subject import SubjectModel
 
         subj = SubjectModel.load(subject)
-    params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None)
+    params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None,
+                                  marker_radius_m=marker_diameter_mm * 0.5e-3)
     with _output_errors(out_dir), atomic_output_dir(out_dir) as tmp:
         stream = DetectionStream(len(cal), params.detection)
         for images in zip(*(iter_video_frames(p) for p in paths)):
