@@ -236,12 +236,14 @@ def test_calibrated_difficulty_reproduces_the_papers_prediction_errors():
 
 def test_fit_recovers_a_known_difficulty():
     """Targets made from a known acceleration difficulty are fitted back from a start
-    30 % off."""
+    30 % off. On 5 videos (2026-11-27: 18.03 px/frame, 0.80 s, objective 2.7e-5 after 33
+    evaluations, 8.3 CPU-s); 8 gave 18.18, 0.81, 3.2e-4 after 42 in 15.5 CPU-s, and 4 gave
+    17.23, 0.74: too near the bars."""
     truth = (18.0, 0.8)
     cfg = st.StudyConfig(seed=3)
     cfg = dataclasses.replace(cfg, difficulty=dataclasses.replace(cfg.difficulty, acceleration=sf.acceleration_difficulty(*truth)))
-    means, _ = sf.mean_errors(cfg, "acceleration", 8, noise_px=0.08)
-    fit = sf.fit_category("acceleration", n_videos=8, seed=3, start=(truth[0] * 1.3, truth[1] * 0.7),
+    means, _ = sf.mean_errors(cfg, "acceleration", 5, noise_px=0.08)
+    fit = sf.fit_category("acceleration", n_videos=5, seed=3, start=(truth[0] * 1.3, truth[1] * 0.7),
                           max_evaluations=60, paper=means)
     assert fit.centre["top_speed_px_per_frame"] == pytest.approx(truth[0], rel=0.1)
     assert fit.centre["period_s"] == pytest.approx(truth[1], rel=0.15)
