@@ -356,9 +356,11 @@ def _solve_skeleton(passes: _Passes, subject, params: MarkerPipelineParams):
     from mocap.skeleton import SkeletonSolver
 
     solver = SkeletonSolver(subject)
-    fit = solver.solve(passes.traj)
     if params.reassociation is None or not params.model_guided:
-        return fit
+        return solver.solve(passes.traj)
+    # The fits that guide the passes and judge the points keep hinges as solved; only the fit
+    # returned interpolates the ones the markers leave undetermined (SkeletonSolver.solve's bridge).
+    fit = solver.solve(passes.traj, bridge=False)
     _model_guided_passes(passes, solver, fit, params)
     return _check_against_model(passes, solver, subject, params)
 
@@ -368,7 +370,7 @@ def _model_guided_passes(passes: _Passes, solver, fit, params: MarkerPipelinePar
     cameras' trackers lost; markers that disagree with the fit by more than
     ``model_outlier_mm`` are left out of a second fit first. One pass re-associates with the
     model's markers, one more with the trajectories it gave."""
-    fit = solver.solve(_drop_outliers(passes.traj, fit, params.model_outlier_mm))
+    fit = solver.solve(_drop_outliers(passes.traj, fit, params.model_outlier_mm), bridge=False)
     predicted = model_markers(solver, fit, passes.traj.labels)
     gate = np.full(predicted.shape[:2], params.model_gate_px)
     passes.run(points=predicted, gate_px=gate, prefix="model_", jumps=False)

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
+from scipy.interpolate import PchipInterpolator
 
 from mocap.errors import MocapInputError, require, require_finite
 from mocap.skeleton_cold_start import cold_start, cold_start_tables
@@ -73,6 +74,12 @@ class IKParams:
         from a cold start and the better of the two is kept.
     marker_noise_m : float
         Marker noise (standard deviation per axis) assumed for ``SkeletonFit.angle_std_rad``.
+    bridge_max_frames : int
+        A hinge the measured markers leave undetermined (``angle_std_rad`` above
+        ``bridge_std_deg``) for at most this many frames between determined ones is
+        interpolated across them (:func:`bridge_undetermined_hinges`); 0: never.
+    bridge_std_deg : float
+        Angle std above which a frame's hinge counts as undetermined.
     """
 
     max_iterations: int = 30
@@ -83,12 +90,15 @@ class IKParams:
     min_markers: int = 4
     restart_residual_m: float = 0.02
     marker_noise_m: float = 0.001
+    bridge_max_frames: int = 15
+    bridge_std_deg: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ("max_iterations", "cold_start_iterations", "min_markers"):
             require(int(getattr(self, name)) >= 1, self, name, "must be >= 1")
-        require_finite(self, ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m"),
-                       positive=False)
+        require(int(self.bridge_max_frames) >= 0, self, "bridge_max_frames", "must be >= 0 (0: never bridge)")
+        require_finite(self, ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m",
+                              "bridge_std_deg"), positive=False)
 
 
 @dataclass(frozen=True, eq=False)
@@ -438,13 +448,17 @@ class SkeletonSolver:
         rms = float(np.sqrt((r @ r) / n))
         return q, rms, it, H
 
-    def solve(self, traj: Trajectories) -> SkeletonFit:
+    def solve(self, traj: Trajectories, bridge: bool = True) -> SkeletonFit:
         """Fit every frame of ``traj`` (markers matched by label; unknown labels ignored).
 
         Parameters
         ----------
         traj : Trajectories
             ``(F, M', 3)`` metres; NaN gaps are skipped per frame.
+        bridge : bool
+            Interpolate hinges the markers leave undetermined for at most
+            ``IKParams.bridge_max_frames`` frames (:meth:`_bridge`). Off for fits that only judge
+            which points to keep (:mod:`mocap.model_check`).
 
         Returns
         -------
@@ -479,7 +493,34 @@ class SkeletonSolver:
                 std[f] = np.sqrt(np.clip(np.diag(cov)[6:], 0.0, None))
             except np.linalg.LinAlgError:
                 pass
+        if bridge and p.bridge_max_frames > 0:
+            self._bridge(q_out, std, valid, traj.times, obs_all, finite, errors, centres)
         return self._fit(traj, q_out, centres, errors, finite, iters, std, valid)
+
+    def _bridge(self, q_out: np.ndarray, std: np.ndarray, valid: np.ndarray, times: np.ndarray, obs_all: np.ndarray,
+                finite: np.ndarray, errors: np.ndarray, centres: np.ndarray) -> None:
+        """Interpolate undetermined hinges (:func:`bridge_undetermined_hinges`), in place.
+
+        A hinge can be undetermined in one direction and still carry measured markers (two
+        markers on a segment leave its twist free), so each hinge's interpolated value is kept
+        only where it moves no measured marker away from the fit's by more than
+        ``BRIDGE_TOLERANCE_MM``; ``errors`` and ``centres`` follow the changed frames."""
+        p = self.params
+        proposed = bridge_undetermined_hinges(q_out, std, valid, times, np.radians(p.bridge_std_deg), p.bridge_max_frames)
+        for f in np.flatnonzero(np.isfinite(proposed).any(axis=1)):
+            ok = finite[f]
+            base = errors[f, ok]
+            q = q_out[f].copy()
+            for h in np.flatnonzero(np.isfinite(proposed[f])):
+                trial = q.copy()
+                trial[7 + h] = proposed[f, h]
+                err = 1000.0 * np.linalg.norm(self.marker_positions(trial)[ok] - obs_all[f, ok], axis=1)
+                if not err.size or np.max(err - base) <= BRIDGE_TOLERANCE_MM:
+                    q = trial
+            if not np.array_equal(q, q_out[f]):
+                q_out[f] = q
+                errors[f, ok] = 1000.0 * np.linalg.norm(self.marker_positions(q)[ok] - obs_all[f, ok], axis=1)
+                centres[f] = self.joint_centres(q)
 
     def _measured(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
         """The trajectories' markers in the solver's marker order ``(F, M, 3)`` (NaN where
@@ -543,6 +584,70 @@ class SkeletonSolver:
             valid=valid,
             tree=self.tree,
         )
+
+
+#: How far (mm) interpolating undetermined hinges may move a measured marker from the fit.
+BRIDGE_TOLERANCE_MM = 1.0
+
+
+def bridge_undetermined_hinges(q: np.ndarray, angle_std_rad: np.ndarray, valid: np.ndarray, times: np.ndarray,
+                               max_std_rad: float, max_frames: int, context: int = 3) -> np.ndarray:
+    """Hinge values interpolated across the frames where the markers do not determine them.
+
+    Where a limb's markers are all hidden for a few frames, the per-frame fit holds its hinges
+    near their previous values (the regularisation), and a swinging leg stays frozen: on the
+    CMU walk seen by 4 cameras the right knee was 12 deg off for the 5 frames its markers were
+    gone. A monotone cubic (PCHIP) through the determined frames on both sides of such a run
+    follows the swing, as gap filling does for marker trajectories.
+
+    Parameters
+    ----------
+    q : (F, nq) float
+        Pinocchio configurations (root position, quaternion, hinges); hinge ``h`` is
+        ``q[:, 7 + h]``.
+    angle_std_rad : (F, H) float
+        Predicted angle std per frame and hinge (NaN where unknown).
+    valid : (F,) bool
+        Solved frames.
+    times : (F,) float
+        Seconds.
+    max_std_rad : float
+        Above this a hinge is undetermined in that frame.
+    max_frames : int
+        Longest run of undetermined frames bridged; longer runs, and runs at the take's ends,
+        are left as solved.
+    context : int
+        Determined frames used on each side of a run.
+
+    Returns
+    -------
+    (F, H) float
+        The interpolated hinge angles (rad); NaN where a hinge is left as solved.
+    """
+    F, H = angle_std_rad.shape
+    t = np.asarray(times, dtype=np.float64)
+    out = np.full((F, H), np.nan)
+    for h in range(H):
+        good = valid & (np.nan_to_num(angle_std_rad[:, h], nan=np.inf) <= max_std_rad)
+        bad = valid & ~good
+        f = 0
+        while f < F:
+            if not bad[f]:
+                f += 1
+                continue
+            end = f
+            while end < F and not good[end]:
+                end += 1
+            # run [f, end): undetermined or unsolved frames between determined ones
+            before = np.flatnonzero(good[:f])[-context:]
+            after = end + np.flatnonzero(good[end:])[:context]
+            if end - f <= max_frames and len(before) and len(after) and before[-1] == f - 1 and after[0] == end:
+                knots = np.concatenate([before, after])
+                run = np.arange(f, end)[valid[f:end]]
+                if len(knots) >= 2 and len(run):
+                    out[run, h] = PchipInterpolator(t[knots], q[knots, 7 + h])(t[run])
+            f = end
+    return out
 
 
 def solve_skeleton(traj: Trajectories, subject: SubjectModel, params: IKParams | None = None) -> SkeletonFit:

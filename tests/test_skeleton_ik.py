@@ -13,7 +13,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
-from mocap.skeleton import IKParams, SkeletonSolver, mujoco_from_pinocchio_q, pinocchio_from_mujoco_q, solve_skeleton
+from mocap.skeleton import (IKParams, SkeletonSolver, bridge_undetermined_hinges, mujoco_from_pinocchio_q,
+                            pinocchio_from_mujoco_q, solve_skeleton)
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES, BodyParams, humanoid_mjcf
@@ -250,3 +251,62 @@ def test_invalid_params_rejected():
         IKParams(min_markers=0)
     with pytest.raises(ValueError, match="regularization_m_per_rad"):
         IKParams(regularization_m_per_rad=-1.0)
+
+
+# ------------------------------------------------------------------------------ bridging
+LEFT_LEG = ["LTHI", "LKNE", "LTIB", "LANK", "LHEE", "LTOE"]
+
+
+def test_hidden_leg_is_bridged_across_its_gap(humanoid):
+    """Every left-leg marker hidden for 6 frames of a 30 Hz motion: the per-frame fit holds the
+    leg's hinges near their last values (its regularisation), the bridged fit interpolates
+    them through the frames on both sides and follows the true swing."""
+    _, model, subject = humanoid
+    rng = np.random.default_rng(7)
+    qpos = _smooth_motion(model, rng, n_frames=60, rate_hz=30.0, amplitude=0.5)
+    names, sites, _ = _fk(model, qpos)
+    xyz = sites + rng.normal(0, NOISE_M, sites.shape)
+    gap = np.arange(25, 31)
+    xyz[np.ix_(gap, [names.index(n) for n in LEFT_LEG])] = np.nan
+    traj = Trajectories(names, xyz, np.arange(60) / 30.0)
+    bridged = solve_skeleton(traj, subject)
+    frozen = solve_skeleton(traj, subject, IKParams(bridge_max_frames=0))
+
+    leg = [bridged.hinge_names.index(h) for h in ("hip_l_x", "hip_l_y", "knee_l", "ankle_l_y")]
+    err_bridged = np.degrees(np.abs(bridged.joint_angles_rad[np.ix_(gap, leg)] - qpos[np.ix_(gap, [7 + j for j in leg])]))
+    err_frozen = np.degrees(np.abs(frozen.joint_angles_rad[np.ix_(gap, leg)] - qpos[np.ix_(gap, [7 + j for j in leg])]))
+    print(f"\nleft leg in the gap: bridged max {err_bridged.max():.2f} deg, held {err_frozen.max():.2f} deg")
+    assert np.degrees(frozen.angle_std_rad[np.ix_(gap, leg)]).min() > 5.0      # the markers do not determine them
+    assert err_bridged.max() < 2.0
+    assert err_frozen.max() > 3 * err_bridged.max()
+    # Outside the gap, and for every marker measured inside it, nothing changes.
+    other = np.setdiff1d(np.arange(60), gap)
+    np.testing.assert_array_equal(bridged.q[other], frozen.q[other])
+    measured = np.isfinite(bridged.marker_errors_mm[gap])
+    assert np.all(np.abs(bridged.marker_errors_mm[gap][measured] - frozen.marker_errors_mm[gap][measured]) <= 1.0)
+    # The bridged frames keep their honest spread: still flagged as undetermined there.
+    np.testing.assert_array_equal(bridged.angle_std_rad, frozen.angle_std_rad)
+
+
+def test_bridge_interpolates_only_short_runs_between_determined_frames():
+    """Known values: a hinge moving linearly is reproduced exactly across a short run (PCHIP is
+    exact on lines); runs at the ends, longer runs and unsolved frames are left alone."""
+    F = 40
+    t = np.arange(F) / 30.0
+    q = np.zeros((F, 9))
+    q[:, 7] = 0.3 + 1.5 * t
+    q[:, 8] = -0.2 + 0.5 * t
+    std = np.full((F, 2), np.radians(0.5))
+    std[10:14, 0] = np.radians(20.0)      # 4 undetermined frames between determined ones: bridged
+    std[0:3, 1] = np.radians(20.0)        # at the start: not bridged
+    std[20:35, 1] = np.radians(20.0)      # 15 frames, longer than 10: not bridged
+    valid = np.ones(F, bool)
+    valid[12] = False                     # an unsolved frame inside the run stays unsolved
+    out = bridge_undetermined_hinges(q, std, valid, t, np.radians(5.0), max_frames=10)
+    expected = np.full((F, 2), np.nan)
+    expected[[10, 11, 13], 0] = q[[10, 11, 13], 7]
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    # With a longer limit the 15-frame run is bridged too.
+    out = bridge_undetermined_hinges(q, std, valid, t, np.radians(5.0), max_frames=15)
+    np.testing.assert_allclose(out[20:35, 1], q[20:35, 8], atol=1e-12)
+    assert np.isnan(out[0:3, 1]).all()
