@@ -10,8 +10,10 @@ from simbench.scenario import load_scenario
 
 
 def test_the_row_time_correction_beats_triangulating_rows_as_simultaneous(tmp_path):
+    # 0.5 s (15 frames; 2026-11-27: corrected 0.85 mm against 7.19 mm uncorrected, 28.6 CPU-s for the
+    # run); 0.6 s gave 0.84 / 7.44 in 33.7 CPU-s
     sc = load_scenario("scenarios/webcams_rolling_shutter.toml",
-                       overrides={"duration_s": 0.6, "motion.start_s": 0.5, "sensor.antialias": 1})
+                       overrides={"duration_s": 0.5, "motion.start_s": 0.5, "sensor.antialias": 1})
     res = run_scenario(sc, out=tmp_path / "run")
     m = res.metrics
     assert m["rolling_shutter.readout_ms"] == 25.0
