@@ -36,22 +36,23 @@ def test_scoreboard_tiny_suite(tmp_path):
 
 
 def test_scoreboard_seeds_give_confidence_intervals(tmp_path):
-    """--seeds 3: every system runs on each seed's frames; each figure is the seeds' mean with a 95 % CI
-    that contains it, and the per-seed rows differ (different frames)."""
+    """--seeds 2: every system runs on each seed's frames; each figure is the seeds' mean with a 95 % CI
+    that contains it, and the per-seed rows differ (different frames). (Two seeds are enough for a
+    mean and a t interval; 3 took a third longer.)"""
     (tmp_path / "suites.toml").write_text(
         '[suites.tiny]\ndescription = "tiny"\nset = { duration_s = 0.2, "rig.count" = 2, "rig.start_deg" = -40.0, '
         '"rig.span_deg" = 80.0, "sensor.antialias" = 1, "markers_pipeline.solve_skeleton" = false }\n'
         f'[[suites.tiny.scenarios]]\nname = "quickstart"\nfile = "{Path("scenarios/quickstart.toml").resolve()}"\n')
-    args = ["scoreboard", "tiny", "--suites", str(tmp_path / "suites.toml"), "--out", str(tmp_path / "sb"), "--seeds", "3"]
+    args = ["scoreboard", "tiny", "--suites", str(tmp_path / "suites.toml"), "--out", str(tmp_path / "sb"), "--seeds", "2"]
     args += ["--system", "pose2sim" if adapter_python("pose2sim") is not None else "project"]  # the fast adapter, or none
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 0, r.output
     data = json.loads((tmp_path / "sb" / "scoreboard.json").read_text())
     dlt = [x for x in data["rows"] if x["variant"] == "triangulate_dlt (labelled 2D)"]
-    assert sorted(x["seed"] for x in dlt) == [0, 1, 2]
+    assert sorted(x["seed"] for x in dlt) == [0, 1]
     values = [x["metrics"]["markers.rmse_mm"] for x in dlt]
-    assert len(set(values)) == 3
+    assert len(set(values)) == 2
     s = next(x for x in data["summary"] if x["variant"] == "triangulate_dlt (labelled 2D)")["metrics"]["markers.rmse_mm"]
-    assert s["n"] == 3 and abs(s["mean"] - sum(values) / 3) < 1e-9 and s["ci_low"] <= s["mean"] <= s["ci_high"]
-    assert "mean over 3 seeds" in (tmp_path / "sb" / "scoreboard.md").read_text()
+    assert s["n"] == 2 and abs(s["mean"] - sum(values) / 2) < 1e-9 and s["ci_low"] < s["mean"] < s["ci_high"]
+    assert "mean over 2 seeds" in (tmp_path / "sb" / "scoreboard.md").read_text()
     assert "[" in r.output  # the table's CI brackets
