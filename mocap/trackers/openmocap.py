@@ -50,6 +50,33 @@ from mocap.trackers.registry import register_tracker
 #: ``max_coast_frames`` of the OpenMoCap trackers: a label is never declared lost.
 NEVER_LOST: int = 2**40
 
+#: Default ``max_gate_px`` of the OpenMoCap trackers that set their own search radius: unbounded.
+UNBOUNDED_GATE_PX: float = 1e6
+
+
+class _OwnGateTracker(Tracker2D):
+    """What OpenMoCap's Kalman filter and CONDENSATION share: ``_predict`` sets the search
+    radius itself (:meth:`~mocap.trackers.base.Tracker2D._set_radius`), a label is never
+    given up (``max_coast_frames`` :data:`NEVER_LOST`) and the radius is not bounded
+    unless ``max_gate_px`` is given (default :data:`UNBOUNDED_GATE_PX`).
+
+    Not a tracker of its own: a subclass passes its ``**base_params`` on to this
+    constructor."""
+
+    _sets_own_gate = True
+
+    def __init__(
+        self,
+        initial_xy: np.ndarray,
+        dt: float,
+        rng: np.random.Generator,
+        *,
+        max_coast_frames: int = NEVER_LOST,
+        **base_params,
+    ) -> None:
+        base_params.setdefault("max_gate_px", UNBOUNDED_GATE_PX)
+        super().__init__(initial_xy, dt, rng, max_coast_frames=max_coast_frames, **base_params)
+
 
 def _image_size(image_size_px: tuple[float, float]) -> tuple[float, float]:
     w, h = (float(v) for v in image_size_px)
@@ -122,7 +149,7 @@ class AlphaBetaTracker(AlphaBetaFilter):
 
 
 @register_tracker("kalman_openmocap")
-class OpenMoCapKalmanTracker(Tracker2D):
+class OpenMoCapKalmanTracker(_OwnGateTracker):
     """OpenMoCap's Kalman filter: constant velocity per frame, ``Q`` and the search
     radius growing with the speed.
 
@@ -150,12 +177,10 @@ class OpenMoCapKalmanTracker(Tracker2D):
         two axes), px.
     integer_pixels : bool, default True
         Truncate the prediction to whole pixels, as OpenMoCap does.
-    max_coast_frames : int, default NEVER_LOST
     **base_params
-        ``gate_probability``, ``min_gate_px``, ``max_gate_px`` (default 1e6: unbounded).
+        ``max_coast_frames`` (default NEVER_LOST), ``gate_probability``, ``min_gate_px``,
+        ``max_gate_px`` (default unbounded; see :class:`_OwnGateTracker`).
     """
-
-    _sets_own_gate = True
 
     def __init__(
         self,
@@ -170,11 +195,9 @@ class OpenMoCapKalmanTracker(Tracker2D):
         initial_velocity_var: float = 100.0,
         radius_per_velocity_std: float = 100.0,
         integer_pixels: bool = True,
-        max_coast_frames: int = NEVER_LOST,
         **base_params,
     ) -> None:
-        base_params.setdefault("max_gate_px", 1e6)
-        super().__init__(initial_xy, dt, rng, max_coast_frames=max_coast_frames, **base_params)
+        super().__init__(initial_xy, dt, rng, **base_params)
         r = np.asarray(measurement_var_px2, dtype=np.float64)
         if r.shape != (2,) or not (r > 0).all():
             raise ValueError(f"measurement_var_px2 must be two positive variances (x, y) in px**2, got {measurement_var_px2!r}")
@@ -279,7 +302,7 @@ class OpenMoCapKalmanTracker(Tracker2D):
 
 
 @register_tracker("condensation")
-class CondensationTracker(Tracker2D):
+class CondensationTracker(_OwnGateTracker):
     """OpenMoCap's CONDENSATION: 100 position particles per label, identity dynamics,
     uniform diffusion, weights from the label's last measured position.
 
@@ -301,12 +324,10 @@ class CondensationTracker(Tracker2D):
         (OpenMoCap sets the sample bounds to ``[0, size / 1.5]``; OpenCV's
         ``cvConDensInitSampleSet`` then diffuses by a fifth of their width:
         ``size / 1.5 / 5``).
-    max_coast_frames : int, default NEVER_LOST
     **base_params
-        ``gate_probability``, ``min_gate_px``, ``max_gate_px`` (default 1e6: unbounded).
+        ``max_coast_frames`` (default NEVER_LOST), ``gate_probability``, ``min_gate_px``,
+        ``max_gate_px`` (default unbounded; see :class:`_OwnGateTracker`).
     """
-
-    _sets_own_gate = True
 
     def __init__(
         self,
@@ -317,11 +338,9 @@ class CondensationTracker(Tracker2D):
         n_particles: int = 100,
         image_size_px: tuple[float, float] = (640.0, 480.0),
         diffusion_fraction: float = 1.0 / 7.5,
-        max_coast_frames: int = NEVER_LOST,
         **base_params,
     ) -> None:
-        base_params.setdefault("max_gate_px", 1e6)
-        super().__init__(initial_xy, dt, rng, max_coast_frames=max_coast_frames, **base_params)
+        super().__init__(initial_xy, dt, rng, **base_params)
         N = _particle_count(n_particles)
         check_positive(diffusion_fraction=diffusion_fraction)
         self.n_particles = N
