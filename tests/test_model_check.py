@@ -102,3 +102,30 @@ def test_without_points_marks_gaps():
     assert np.isnan(out.xyz[drop]).all() and np.isfinite(out.xyz[~drop]).all()
     np.testing.assert_array_equal(out.filled, ~drop)
     np.testing.assert_array_equal(out.n_views, np.where(drop, 0, 3))
+
+
+def test_correct_points_the_fallback_dropped_are_taken_back(walk):
+    """Three wrong points on a foot in a frame seen by two cameras (so the limit is 5 mm): the
+    first fit, pulled by them, misses correct pelvis points, and the fallback drops every point
+    the first fit missed. The fit without any suspect point explains the pelvis points again, so
+    they are taken back; no wrong point is. The leg's correct points stay out: without its other
+    markers the fit cannot judge them."""
+    solver, names, sites, t = walk
+    traj = _trajectories(names, sites, t, np.random.default_rng(0))
+    f = 6
+    traj.n_views[f] = 2
+    wrong = [names.index(n) for n in ("LTOE", "LHEE", "LANK")]
+    traj.xyz[f, names.index("LTOE")] = sites[f, names.index("LHEE")]    # the toe label on the heel's detection
+    traj.xyz[f, names.index("LHEE")] += np.array([0.09, -0.09, 0.06])
+    traj.xyz[f, names.index("LANK")] += np.array([-0.12, 0.0, 0.09])
+    first = solver.solve(traj, bridge=False)
+    missed = np.nan_to_num(model_error_mm(solver, first, traj)[f], nan=0.0) > error_limit_mm(traj, LIMIT_MM)[f]
+    pelvis = [names.index(n) for n in ("LASI", "RASI", "LPSI")]
+    assert missed[pelvis].all()                                       # the fallback drops them
+
+    _, kept = robust_skeleton_fit(traj, solver, LIMIT_MM)
+    assert np.isnan(kept.xyz[f, wrong, 0]).all()
+    leg = [names.index(n) for n in ("LTHI", "LKNE", "LTIB", "LANK", "LHEE", "LTOE")]
+    rest = np.setdiff1d(np.arange(len(names)), leg)
+    assert np.isfinite(kept.xyz[f, rest, 0]).all()                   # the pelvis points among them
+    assert np.isfinite(kept.xyz[np.arange(len(t)) != f]).all()
