@@ -15,6 +15,9 @@ residuals ``p_model(q) - p_measured`` (only the markers with finite positions), 
   a cold start), so hinges the markers do not constrain (e.g. lumbar vs thorax split when
   only the thorax carries markers) stay put instead of drifting.
 
+After every frame is solved, hinges the markers leave undetermined for a few frames are
+interpolated across them (:mod:`mocap.skeleton_bridge`).
+
 The Levenberg-Marquardt loop is written here rather than calling
 ``scipy.optimize.least_squares`` because the free-flyer root lives on SE(3) (steps go through
 ``pinocchio.integrate``) and because scipy's per-call overhead (about a millisecond) would
@@ -31,9 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-from scipy.interpolate import PchipInterpolator
 
 from mocap.errors import MocapInputError, require, require_finite
+from mocap.skeleton_bridge import bridge_fit
 from mocap.skeleton_cold_start import cold_start, cold_start_tables
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
@@ -77,7 +80,8 @@ class IKParams:
     bridge_max_frames : int
         A hinge the measured markers leave undetermined (``angle_std_rad`` above
         ``bridge_std_deg``) for at most this many frames between determined ones is
-        interpolated across them (:func:`bridge_undetermined_hinges`); 0: never.
+        interpolated across them (:func:`mocap.skeleton_bridge.bridge_undetermined_hinges`);
+        0: never.
     bridge_std_deg : float
         Angle std above which a frame's hinge counts as undetermined.
     """
@@ -457,8 +461,8 @@ class SkeletonSolver:
             ``(F, M', 3)`` metres; NaN gaps are skipped per frame.
         bridge : bool
             Interpolate hinges the markers leave undetermined for at most
-            ``IKParams.bridge_max_frames`` frames (:meth:`_bridge`). Off for fits that only judge
-            which points to keep (:mod:`mocap.model_check`).
+            ``IKParams.bridge_max_frames`` frames (:func:`mocap.skeleton_bridge.bridge_fit`).
+            Off for fits that only judge which points to keep (:mod:`mocap.model_check`).
 
         Returns
         -------
@@ -486,7 +490,7 @@ class SkeletonSolver:
             q_prev = q
         self._solve_backwards(out, iters, valid, obs_all, finite)
         if bridge and p.bridge_max_frames > 0:
-            self._bridge(q_out, std, valid, traj.times, obs_all, finite, errors, centres)
+            bridge_fit(self, q_out, std, valid, traj.times, obs_all, finite, errors, centres)
         return self._fit(traj, q_out, centres, errors, finite, iters, std, valid)
 
     def _record(self, out: tuple, f: int, q: np.ndarray, rms: float, H: np.ndarray, obs: np.ndarray, ok: np.ndarray) -> None:
@@ -521,31 +525,6 @@ class SkeletonSolver:
             iters[f] += it
             if rms < rms_m[f]:
                 self._record(out, f, q, rms, H, obs_all[f], finite[f])
-
-    def _bridge(self, q_out: np.ndarray, std: np.ndarray, valid: np.ndarray, times: np.ndarray, obs_all: np.ndarray,
-                finite: np.ndarray, errors: np.ndarray, centres: np.ndarray) -> None:
-        """Interpolate undetermined hinges (:func:`bridge_undetermined_hinges`), in place.
-
-        A hinge can be undetermined in one direction and still carry measured markers (two
-        markers on a segment leave its twist free), so each hinge's interpolated value is kept
-        only where it moves no measured marker away from the fit's by more than
-        ``BRIDGE_TOLERANCE_MM``; ``errors`` and ``centres`` follow the changed frames."""
-        p = self.params
-        proposed = bridge_undetermined_hinges(q_out, std, valid, times, np.radians(p.bridge_std_deg), p.bridge_max_frames)
-        for f in np.flatnonzero(np.isfinite(proposed).any(axis=1)):
-            ok = finite[f]
-            base = errors[f, ok]
-            q = q_out[f].copy()
-            for h in np.flatnonzero(np.isfinite(proposed[f])):
-                trial = q.copy()
-                trial[7 + h] = proposed[f, h]
-                err = 1000.0 * np.linalg.norm(self.marker_positions(trial)[ok] - obs_all[f, ok], axis=1)
-                if not err.size or np.max(err - base) <= BRIDGE_TOLERANCE_MM:
-                    q = trial
-            if not np.array_equal(q, q_out[f]):
-                q_out[f] = q
-                errors[f, ok] = 1000.0 * np.linalg.norm(self.marker_positions(q)[ok] - obs_all[f, ok], axis=1)
-                centres[f] = self.joint_centres(q)
 
     def _measured(self, traj: Trajectories) -> tuple[np.ndarray, np.ndarray]:
         """The trajectories' markers in the solver's marker order ``(F, M, 3)`` (NaN where
@@ -608,70 +587,6 @@ class SkeletonSolver:
             valid=valid,
             tree=self.tree,
         )
-
-
-#: How far (mm) interpolating undetermined hinges may move a measured marker from the fit.
-BRIDGE_TOLERANCE_MM = 1.0
-
-
-def bridge_undetermined_hinges(q: np.ndarray, angle_std_rad: np.ndarray, valid: np.ndarray, times: np.ndarray,
-                               max_std_rad: float, max_frames: int, context: int = 3) -> np.ndarray:
-    """Hinge values interpolated across the frames where the markers do not determine them.
-
-    Where a limb's markers are all hidden for a few frames, the per-frame fit holds its hinges
-    near their previous values (the regularisation), and a swinging leg stays frozen: on the
-    CMU walk seen by 4 cameras the right knee was 12 deg off for the 5 frames its markers were
-    gone. A monotone cubic (PCHIP) through the determined frames on both sides of such a run
-    follows the swing, as gap filling does for marker trajectories.
-
-    Parameters
-    ----------
-    q : (F, nq) float
-        Pinocchio configurations (root position, quaternion, hinges); hinge ``h`` is
-        ``q[:, 7 + h]``.
-    angle_std_rad : (F, H) float
-        Predicted angle std per frame and hinge (NaN where unknown).
-    valid : (F,) bool
-        Solved frames.
-    times : (F,) float
-        Seconds.
-    max_std_rad : float
-        Above this a hinge is undetermined in that frame.
-    max_frames : int
-        Longest run of undetermined frames bridged; longer runs, and runs at the take's ends,
-        are left as solved.
-    context : int
-        Determined frames used on each side of a run.
-
-    Returns
-    -------
-    (F, H) float
-        The interpolated hinge angles (rad); NaN where a hinge is left as solved.
-    """
-    F, H = angle_std_rad.shape
-    t = np.asarray(times, dtype=np.float64)
-    out = np.full((F, H), np.nan)
-    for h in range(H):
-        good = valid & (np.nan_to_num(angle_std_rad[:, h], nan=np.inf) <= max_std_rad)
-        bad = valid & ~good
-        f = 0
-        while f < F:
-            if not bad[f]:
-                f += 1
-                continue
-            end = f
-            while end < F and not good[end]:
-                end += 1
-            # run [f, end): undetermined or unsolved frames between determined ones
-            before = np.flatnonzero(good[:f])[-context:]
-            after = end + np.flatnonzero(good[end:])[:context]
-            if end - f <= max_frames and len(before) and len(after) and before[-1] == f - 1 and after[0] == end:
-                knots = np.concatenate([before, after])
-                run = np.arange(f, end)[valid[f:end]]
-                if len(knots) >= 2 and len(run):
-                    out[run, h] = PchipInterpolator(t[knots], q[knots, 7 + h])(t[run])
-            f = end
-    return out
 
 
 def solve_skeleton(traj: Trajectories, subject: SubjectModel, params: IKParams | None = None) -> SkeletonFit:

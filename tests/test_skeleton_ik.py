@@ -13,8 +13,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
-from mocap.skeleton import (IKParams, SkeletonSolver, bridge_undetermined_hinges, mujoco_from_pinocchio_q,
-                            pinocchio_from_mujoco_q, solve_skeleton)
+from mocap.skeleton import IKParams, SkeletonSolver, mujoco_from_pinocchio_q, pinocchio_from_mujoco_q, solve_skeleton
+from mocap.skeleton_bridge import bridge_undetermined_hinges
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 from simbench.scenes.humanoid import BODY_NAMES, HINGE_NAMES, BodyParams, humanoid_mjcf
