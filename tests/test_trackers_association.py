@@ -21,7 +21,7 @@ from mocap.trackers import (
     tracker_params,
     unregister_tracker,
 )
-from mocap.trackers.base import gated_assignment
+from mocap.trackers.gating import gated_assignment
 from scipy.spatial.distance import cdist
 from mocap.tracking import track_camera
 

@@ -1,4 +1,5 @@
-"""The one interface of every 2D label-keeping tracker, and the gated association they share.
+"""The one interface of every 2D label-keeping tracker (the gated association they share
+is in :mod:`mocap.trackers.gating`).
 
 A tracker follows ``M`` labelled markers in ONE camera. Each frame it runs
 
@@ -66,10 +67,9 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial.distance import cdist
 
-from mocap.trackers.gating import unique_gated_pairs
+from mocap.trackers.gating import gated_hungarian, mahalanobis_sq, unique_gated_pairs
 from mocap.types import COASTING, LOST, TRACKED  # a label's status (defined with Tracks2D)
 
 
@@ -346,7 +346,7 @@ class Tracker2D:
             inside = d2 <= self._thr  # NaN centres compare False
             d2 /= self._gvar
         else:
-            d2 = _mahalanobis_sq(self._centre, self._gvar, det)
+            d2 = mahalanobis_sq(self._centre, self._gvar, det)
             inside = d2 <= self.gate_threshold
         per_label = inside.sum(axis=1)
         per_detection = inside.sum(axis=0)
@@ -368,7 +368,7 @@ class Tracker2D:
             cols = np.flatnonzero(free & inside[rows].any(axis=0)) if len(rows) else rows
             if len(rows) == 0 or len(cols) == 0:
                 continue
-            r, c = _gated_hungarian(pair_cost[np.ix_(rows, cols)], inside[np.ix_(rows, cols)], miss_cost[rows])
+            r, c = gated_hungarian(pair_cost[np.ix_(rows, cols)], inside[np.ix_(rows, cols)], miss_cost[rows])
             idx[rows[r]] = cols[c]
             free[cols[c]] = False
         return idx
@@ -514,94 +514,3 @@ class AlphaBetaFilter(Tracker2D):
     def x_est(self) -> np.ndarray:
         """(M, 2) float: smoothed position ``x_s`` in pixels."""
         return self._x
-
-
-def _mahalanobis_sq(centre: np.ndarray, var: np.ndarray, det: np.ndarray) -> np.ndarray:
-    """(M, n) squared Mahalanobis distances of detections ``det`` (n, 2) px from centres
-    ``centre`` (M, 2) px under diagonal gate covariances ``var``: (M, 1) for circular
-    gates, (M, 2) per image axis (px**2)."""
-    if var.shape[1] == 1:
-        d2 = cdist(centre, det, "sqeuclidean")  # one C loop for the (M, n) distances
-        d2 /= var
-        return d2
-    dx = det[:, 0] - centre[:, 0:1]  # (M, n) px
-    dy = det[:, 1] - centre[:, 1:2]
-    dx *= dx
-    dy *= dy
-    dx /= var[:, 0:1]
-    dy /= var[:, 1:2]
-    dx += dy
-    return dx
-
-
-def gated_assignment(centre: np.ndarray, gate_var: np.ndarray, detections_xy: np.ndarray, threshold: float) -> np.ndarray:
-    """Gated assignment of detections to labels, as :meth:`Tracker2D.associate` does it.
-
-    A stand-alone form (no loss handling: every label competes) for filters that keep
-    their own state, e.g. the per-marker filterpy loop of the benchmark.
-
-    Parameters
-    ----------
-    centre : (M, 2) float
-        Predicted positions, px.
-    gate_var : (M, 2) or (M, 1) float
-        Per-axis gate variances (diagonal of ``S``), or one per label for circular
-        gates, px**2.
-    detections_xy : (n, 2) float
-        Detections, px.
-    threshold : float
-        Squared-Mahalanobis gate.
-
-    Returns
-    -------
-    (M,) int
-        Detection index per label, -1 for none.
-    """
-    det = np.asarray(detections_xy, dtype=np.float64).reshape(-1, 2)
-    M = len(centre)
-    if len(det) == 0:
-        return np.full(M, -1, dtype=np.intp)
-    d2 = _mahalanobis_sq(centre, np.asarray(gate_var, dtype=np.float64), det)
-    inside = d2 <= threshold
-    rows, cols = np.divmod(np.flatnonzero(inside), len(det))
-    if len(rows) <= 1 or (np.bincount(rows).max() <= 1 and np.bincount(cols).max() <= 1):
-        idx = np.full(M, -1, dtype=np.intp)
-        idx[rows] = cols
-        return idx
-    per_label = inside.sum(axis=1)
-    idx = np.full(M, -1, dtype=np.intp)
-    rows = np.flatnonzero(per_label > 0)
-    cols = np.flatnonzero(inside[rows].any(axis=0))
-    r, c = _gated_hungarian(d2[np.ix_(rows, cols)], inside[np.ix_(rows, cols)], np.full(len(rows), float(threshold)))
-    idx[rows[r]] = cols[c]
-    return idx
-
-
-def _gated_hungarian(cost: np.ndarray, inside: np.ndarray, miss_cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Minimum-cost assignment with forbidden pairs and a per-row miss option.
-
-    Parameters
-    ----------
-    cost : (R, C) float
-        Pair costs (only entries where ``inside`` is True are allowed).
-    inside : (R, C) bool
-    miss_cost : (R,) float
-        Cost of leaving each row unassigned.
-
-    Returns
-    -------
-    rows, cols : (k,) int
-        The assigned pairs, all inside their gates.
-    """
-    R, C = cost.shape
-    allowed = np.where(inside, cost, 0.0)
-    big = 4.0 * (np.abs(allowed).sum() + np.abs(miss_cost).sum() + 1.0)
-    # Columns C..C+R-1 are per-row "miss" dummies (the standard augmented GNN matrix).
-    full = np.full((R, C + R), big)
-    full[:, :C] = np.where(inside, cost, big)
-    full[np.arange(R), C + np.arange(R)] = miss_cost
-    r, c = linear_sum_assignment(full)
-    keep = c < C
-    r, c = r[keep], c[keep]
-    ok = inside[r, c]
-    return r[ok], c[ok]

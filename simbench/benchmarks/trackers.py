@@ -7,7 +7,7 @@ markers moving on simple smooth paths in a 640x480 image (detections = true posi
 0.1 px noise, shuffled), with ``time.perf_counter_ns``, and reports the 5th percentile,
 median, 95th percentile and maximum in ms. In the same run it times a *reference*: one
 ``filterpy.kalman.KalmanFilter`` per marker, predicted and updated in a Python loop,
-with the same gated Hungarian association (:func:`mocap.trackers.base.gated_assignment`),
+with the same gated Hungarian association (:func:`mocap.trackers.gating.gated_assignment`),
 and reports how many times faster the vectorised Kalman tracker is. The contenders take
 turns by blocks of 10 frames, so changes in the machine's load affect them alike.
 ``simbench bench trackers`` prints :func:`format_benchmark_table` of it.
@@ -29,7 +29,7 @@ from scipy.linalg import block_diag
 
 from mocap.tracker_trials import IMAGE_SIZE
 from mocap.trackers import KalmanTracker, available_trackers, make_tracker, tracker_params
-from mocap.trackers.base import gated_assignment
+from mocap.trackers.gating import gated_assignment
 
 REFERENCE_NAME = "filterpy_loop"
 
@@ -119,7 +119,7 @@ def _filterpy_loop_step(true_xy: np.ndarray, dets: list[np.ndarray], dt: float):
     Same model as the ``kalman`` tracker's defaults (constant velocity, R, initial P),
     with a constant ``Q`` (``accel_std`` of a still marker: less work than the speed
     dependent Q of the vectorised tracker, so the speed-up reported is conservative),
-    and the same gated association (:func:`~mocap.trackers.base.gated_assignment` on
+    and the same gated association (:func:`~mocap.trackers.gating.gated_assignment` on
     the predicted positions and ``diag(S)``).
     """
     defaults = tracker_params("kalman")
