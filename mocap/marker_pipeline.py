@@ -9,7 +9,6 @@ real webcam video (``mocap markers``) and on the bench's rendered frames
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,17 +17,18 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from mocap.calibration import Calibration
+from mocap.capture_passes import CapturePasses, first_reconstruction
 from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, reconstruct_unlabelled
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError, require
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
 from mocap.cluster_labelling import ClusterMarkerModel
-from mocap.model_check import model_markers, robust_skeleton_fit
+from mocap.model_check import error_limit_mm, model_markers, robust_skeleton_fit, without_points
 from mocap.model_labelling import ModelLabellingParams, PointLabels, label_points
 from mocap.skeleton_labelling import SkeletonMarkerModel
-from mocap.reassociation import ReassociationParams, reassociate
-from mocap.reconstruction import ReconstructionParams, reconstruct
-from mocap.swap_repair import SwapRepairParams, find_jumps, repair_swaps
+from mocap.reassociation import ReassociationParams
+from mocap.reconstruction import ReconstructionParams
+from mocap.swap_repair import SwapRepairParams
 from mocap.synchronisation import ClockSync, SyncParams, estimate_sync, resample_detections
 from mocap.tracking import track_cameras
 from mocap.types import Detections, Tracks2D, Trajectories
@@ -161,7 +161,8 @@ def capture_from_detections(
     use_model, tracks, init = _labelled_tracks(detections, calibration, template, times, params, rng, subject,
                                                marker_model, timings)
     t0 = time.perf_counter()
-    passes = _first_reconstruction(tracks, detections, calibration, times, params, use_model)
+    passes = first_reconstruction(tracks, detections, calibration, times, params.reconstruction, params.reassociation,
+                                  params.swap_repair, use_model)
     if params.reassociation is not None:
         # 3D-guided correspondence: reproject, re-associate detections, reconstruct again.
         for _ in range(params.reassociation_passes):
@@ -272,87 +273,7 @@ def _labelled_tracks(detections: list[list[Detections]], calibration: Calibratio
     return False, tracks, init
 
 
-@dataclass
-class _Passes:
-    """The state the reassociate -> reconstruct -> repair passes hand on: the measurements
-    (``measured``), the trajectories triangulated from them, the repaired swaps and jumps
-    (``swaps``) and the re-association counts (``stats``)."""
-
-    detections: list[list[Detections]]
-    calibration: Calibration
-    times: np.ndarray
-    reconstruction: ReconstructionParams
-    reassociation: ReassociationParams | None
-    swap_repair: SwapRepairParams | None
-    measured: Tracks2D
-    traj: Trajectories
-    swaps: list = field(default_factory=list)
-    stats: dict[str, int] = field(default_factory=dict)
-
-    def add_stats(self, stats: dict[str, int], prefix: str = "") -> None:
-        for k, v in stats.items():
-            self.stats[prefix + k] = self.stats.get(prefix + k, 0) + v
-
-    def repair(self, jumps: bool = True) -> None:
-        """Undo label swaps (and, with ``jumps``, drop label jumps) in ``traj`` and ``measured``."""
-        self.traj, self.measured = _repair_swaps(self.traj, self.measured, self.swap_repair, self.swaps, jumps=jumps)
-
-    def recentre(self, refined: list[list[Detections]]) -> None:
-        """Move every measurement to the centroid ``refined`` gives its blob (the same blobs,
-        in the same order, as ``detections``), take ``refined`` as the detections, and
-        triangulate again: the labels stay as they are."""
-        xy = self.measured.xy.copy()
-        for c, (old_cam, new_cam) in enumerate(zip(self.detections, refined)):
-            for f, (old, new) in enumerate(zip(old_cam, new_cam)):
-                if old is new or len(old) == 0:
-                    continue
-                m = xy[f, c]
-                ok = np.flatnonzero(np.isfinite(m).all(axis=1))
-                if len(ok) == 0:
-                    continue
-                gap = np.abs(m[ok, None, :] - old.xy[None, :, :]).max(axis=2)
-                j = np.argmin(gap, axis=1)
-                same = gap[np.arange(len(ok)), j] < 1e-9  # a measurement is one of the blobs
-                m[ok[same]] = new.xy[j[same]]
-        self.measured = Tracks2D(self.measured.labels, xy, self.measured.predicted_xy, self.measured.status,
-                                 self.measured.camera_names)
-        self.detections = refined
-        self.traj = reconstruct(self.measured, self.calibration, self.reconstruction, times=self.times)
-        self.repair()
-
-    def run(self, points: np.ndarray | None = None, gate_px: np.ndarray | None = None, prefix: str = "",
-            jumps: bool = True) -> None:
-        """One pass: re-associate the detections with the 3D points (the trajectories, or
-        ``points`` within ``gate_px``), reconstruct from them, repair swaps."""
-        self.measured, stats = reassociate(self.measured, self.detections, self.traj, self.calibration,
-                                           self.reassociation, points=points, gate_px=gate_px)
-        self.add_stats(stats, prefix)
-        self.traj = reconstruct(self.measured, self.calibration, self.reconstruction, times=self.times)
-        self.repair(jumps)
-
-
-def _first_reconstruction(tracks: Tracks2D, detections: list[list[Detections]], calibration: Calibration,
-                          times: np.ndarray, params: MarkerPipelineParams, use_model: bool) -> _Passes:
-    """Triangulate the labelled tracks once and repair swaps: the passes' starting state."""
-    # Labels from the model are already consistent across cameras: no cross-camera re-labelling
-    # (it exists to mend 2D trackers' label mistakes).
-    first = dataclasses.replace(params.reconstruction, relabel_gate_px=0) if use_model else params.reconstruction
-    traj = reconstruct(tracks, calibration, first, times=np.asarray(times, float), detections=None if use_model else detections)
-    # The first reconstruction re-labels views across cameras and re-acquires lost
-    # labels from the raw detections; later ones triangulate exactly the measurements
-    # the re-association kept (it may drop partly hidden blobs on purpose).
-    later = dataclasses.replace(params.reconstruction, relabel_gate_px=0)
-    # Swap and jump repair undo what 2D trackers do to labels; labels from the model cannot swap
-    # (one point per label, checked against the model every frame), and on real motion the
-    # repair's motion-continuity test removed good samples (bvh_walk: 0.994 -> 0.980 reconstructed).
-    swap_params = None if use_model else params.swap_repair
-    passes = _Passes(detections, calibration, np.asarray(times, float), later, params.reassociation, swap_params,
-                     tracks, traj)
-    passes.repair()
-    return passes
-
-
-def _solve_skeleton(passes: _Passes, subject, params: MarkerPipelineParams):
+def _solve_skeleton(passes: CapturePasses, subject, params: MarkerPipelineParams):
     """Fit the subject's skeleton to the trajectories; with re-association and
     ``model_guided``, let the fit guide two more passes, then check and fill the points
     against it (``passes`` is updated). Returns the fit."""
@@ -377,7 +298,7 @@ def _solve_skeleton(passes: _Passes, subject, params: MarkerPipelineParams):
     return fit
 
 
-def _model_guided_passes(passes: _Passes, solver, fit, params: MarkerPipelineParams) -> None:
+def _model_guided_passes(passes: CapturePasses, solver, fit, params: MarkerPipelineParams) -> None:
     """Model-guided labelling: the fitted skeleton predicts every marker, also those the
     cameras' trackers lost; markers that disagree with the fit by more than
     ``model_outlier_mm`` are left out of a second fit first. One pass re-associates with the
@@ -389,7 +310,7 @@ def _model_guided_passes(passes: _Passes, solver, fit, params: MarkerPipelinePar
     passes.run(jumps=False)
 
 
-def _check_against_model(passes: _Passes, solver, subject, params: MarkerPipelineParams):
+def _check_against_model(passes: CapturePasses, solver, subject, params: MarkerPipelineParams):
     """Refit, remove the points the fitted skeleton cannot explain (mislabelled or ghosts:
     :func:`mocap.model_check.robust_skeleton_fit`), and fill gaps from the skeleton fitted to
     the measured points only: in fast motion a spline across a gap is centimetres off, the
@@ -504,55 +425,16 @@ def _tracks_from_point_labels(labels: PointLabels, frames: list[UnlabelledPoints
     return tracks, init
 
 
-def _repair_swaps(traj: Trajectories, measured: Tracks2D, params: SwapRepairParams | None,
-                  events_log: list, jumps: bool = True) -> tuple[Trajectories, Tracks2D]:
-    """Undo 3D label swaps in the trajectories and in the 2D measurements behind them."""
-    if params is None:
-        return traj, measured
-    xyz, events = repair_swaps(traj.xyz, params)
-    jumps = find_jumps(xyz, params) if jumps else np.zeros(xyz.shape[:2], bool)
-    if not events and not jumps.any():
-        return traj, measured
-    xy = measured.xy.copy()
-    filled, res, nv = traj.filled.copy(), traj.residual_px.copy(), traj.n_views.copy()
-    for f, a, b in events:
-        xy[f:, :, [a, b]] = xy[f:, :, [b, a]]
-        for arr in (filled, res, nv):
-            arr[f:, [a, b]] = arr[f:, [b, a]]
-    # A label that jumped onto another marker loses those samples (and their views).
-    xyz[jumps] = np.nan
-    xy[jumps[:, None, :].repeat(xy.shape[1], axis=1)] = np.nan
-    nv = np.where(jumps, 0, nv)
-    events_log.extend(("swap", f, a, b) for f, a, b in events)
-    events_log.extend(("jump", int(f), int(m)) for f, m in zip(*np.nonzero(jumps)))
-    return (Trajectories(list(traj.labels), xyz, traj.times, filled, res, nv),
-            Tracks2D(measured.labels, xy, measured.predicted_xy, measured.status, measured.camera_names))
-
-
-def _drop_outliers(traj: Trajectories, fit, max_mm: float, refill: ReconstructionParams | None = None) -> Trajectories:
-    """Trajectories without the points that disagree with a skeleton fit by > ``max_mm``
-    (with ``refill``: short gaps filled again as :func:`mocap.reconstruction.reconstruct` does)."""
+def _drop_outliers(traj: Trajectories, fit, max_mm: float) -> Trajectories:
+    """Trajectories without the points that disagree with a skeleton fit by more than the
+    model check's limit (``max_mm``, half of it for two-view points:
+    :func:`mocap.model_check.error_limit_mm`)."""
     idx = [fit.marker_labels.index(n) if n in fit.marker_labels else -1 for n in traj.labels]
     err = np.full(traj.xyz.shape[:2], np.nan)
     for j, i in enumerate(idx):
         if i >= 0:
             err[:, j] = fit.marker_errors_mm[:, i]
-    xyz = traj.xyz.copy()
-    # A point from two views cannot check itself (any two rays meet within the epipolar gate):
-    # a partly hidden blob biases it by several millimetres unseen, so the model is held to
-    # half the tolerance there.
-    limit = np.where(np.asarray(traj.n_views) == 2, 0.5 * max_mm, max_mm)
-    bad = np.nan_to_num(err, nan=0.0) > limit
-    xyz[bad] = np.nan
-    filled = np.asarray(traj.filled, bool) & ~bad
-    n_views = np.where(bad, 0, traj.n_views)
-    if refill is not None and refill.max_gap_frames > 0:
-        from mocap.smoothing import fill_gaps
-
-        xyz[filled] = np.nan  # re-fill every gap from measured points only
-        method = "cubic" if refill.smoothing != "none" else "lsq"
-        xyz, filled = fill_gaps(xyz, traj.times, refill.max_gap_frames, method, refill.gap_context_frames)
-    return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, n_views)
+    return without_points(traj, np.nan_to_num(err, nan=0.0) > error_limit_mm(traj, max_mm))
 
 
 SPLINE_ONLY_MAX_GAP = 0
