@@ -65,13 +65,28 @@ _CATEGORY_CODE = {c: k for k, c in enumerate(CATEGORIES)}
 Range = tuple[float, float]
 
 
-def _check_range(owner: str, name: str, r: Range, lo: float = 0.0, hi: float = float("inf")) -> None:
+_INF = float("inf")
+
+
+def _check_range(owner: str, name: str, r: Range, lo: float = 0.0, hi: float = _INF) -> None:
     if len(r) != 2 or not (lo <= r[0] <= r[1] <= hi):
         raise ValueError(f"{owner}.{name} must be a range (low, high) with {lo:g} <= low <= high <= {hi:g}, got {r!r}")
 
 
+class _RangeChecks:
+    """The check of a difficulty class: each field named in ``_bounds`` is a range
+    ``(low, high)`` with ``lo <= low <= high <= hi`` (errors name ``<_kind>.<field>``)."""
+
+    _kind: str
+    _bounds: dict[str, tuple[float, float]]
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in self._bounds.items():
+            _check_range(self._kind, name, getattr(self, name), lo, hi)
+
+
 @dataclass(frozen=True)
-class ZigzagDifficulty:
+class ZigzagDifficulty(_RangeChecks):
     """A zigzag in several directions: straight legs at one drawn speed, turning left or
     right by a drawn angle at each corner (a leg that would leave the image is cut short).
 
@@ -83,14 +98,12 @@ class ZigzagDifficulty:
     leg_frames: Range
     turn_deg: Range
 
-    def __post_init__(self) -> None:
-        _check_range("zigzag", "speed_px_per_frame", self.speed_px_per_frame, 0.1)
-        _check_range("zigzag", "leg_frames", self.leg_frames, 1.0)
-        _check_range("zigzag", "turn_deg", self.turn_deg, 0.0, 180.0)
+    _kind = "zigzag"
+    _bounds = {"speed_px_per_frame": (0.1, _INF), "leg_frames": (1.0, _INF), "turn_deg": (0.0, 180.0)}
 
 
 @dataclass(frozen=True)
-class AccelerationDifficulty:
+class AccelerationDifficulty(_RangeChecks):
     """Motions with acceleration, one of three kinds per video: speeding up from
     ``start_speed`` to ``top_speed`` along a gently bent path (``speed ~ start + (top -
     start) (t / T) ** power``), the same braking, or oscillating to and fro (simple
@@ -107,15 +120,13 @@ class AccelerationDifficulty:
     ramp_power: Range = (1.0, 2.5)
     bend_deg: float = 40.0
 
-    def __post_init__(self) -> None:
-        _check_range("acceleration", "top_speed_px_per_frame", self.top_speed_px_per_frame, 0.1)
-        _check_range("acceleration", "period_s", self.period_s, 0.1)
-        _check_range("acceleration", "start_speed_px_per_frame", self.start_speed_px_per_frame, 0.0)
-        _check_range("acceleration", "ramp_power", self.ramp_power, 0.1)
+    _kind = "acceleration"
+    _bounds = {"top_speed_px_per_frame": (0.1, _INF), "period_s": (0.1, _INF), "start_speed_px_per_frame": (0.0, _INF),
+               "ramp_power": (0.1, _INF)}
 
 
 @dataclass(frozen=True)
-class OcclusionDifficulty:
+class OcclusionDifficulty(_RangeChecks):
     """A marker crossing a barrier on a straight, arc or wavy path.
 
     speed_px_per_frame : (low, high) px/frame; barrier_width_px, barrier_height_px :
@@ -127,14 +138,12 @@ class OcclusionDifficulty:
     barrier_width_px: Range = (30.0, 120.0)
     barrier_height_px: Range = (100.0, 220.0)
 
-    def __post_init__(self) -> None:
-        _check_range("occlusion", "speed_px_per_frame", self.speed_px_per_frame, 0.1)
-        _check_range("occlusion", "barrier_width_px", self.barrier_width_px, 1.0)
-        _check_range("occlusion", "barrier_height_px", self.barrier_height_px, 10.0)
+    _kind = "occlusion"
+    _bounds = {"speed_px_per_frame": (0.1, _INF), "barrier_width_px": (1.0, _INF), "barrier_height_px": (10.0, _INF)}
 
 
 @dataclass(frozen=True)
-class SwapDifficulty:
+class SwapDifficulty(_RangeChecks):
     """Two markers whose straight paths cross at a small angle, passing ``miss_px`` apart.
 
     speed_px_per_frame : (low, high) px/frame, each marker; crossing_angle_deg : (low,
@@ -147,10 +156,11 @@ class SwapDifficulty:
     miss_px: Range = (0.0, 5.0)
     labelled: int = 1
 
+    _kind = "swap"
+    _bounds = {"speed_px_per_frame": (0.1, _INF), "crossing_angle_deg": (0.0, 90.0), "miss_px": (0.0, _INF)}
+
     def __post_init__(self) -> None:
-        _check_range("swap", "speed_px_per_frame", self.speed_px_per_frame, 0.1)
-        _check_range("swap", "crossing_angle_deg", self.crossing_angle_deg, 0.0, 90.0)
-        _check_range("swap", "miss_px", self.miss_px, 0.0)
+        super().__post_init__()
         if self.labelled not in (1, 2):
             raise ValueError(f"swap.labelled must be 1 (seed 000: one labelled marker and a NULL one) or 2, got {self.labelled!r}")
 
