@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Sequence
 
 import numpy as np
 
@@ -489,25 +489,6 @@ def _fill_from_model(traj: Trajectories, predicted: np.ndarray, recon: Reconstru
         xyz[drop, m] = np.nan
         filled[drop, m] = False
     return Trajectories(list(traj.labels), xyz, traj.times, filled, traj.residual_px, traj.n_views)
-
-
-def capture_markers(
-    frames_per_camera: Sequence[Iterable[np.ndarray]],
-    calibration: Calibration,
-    template: LabelTemplate,
-    times: np.ndarray,
-    params: MarkerPipelineParams | None = None,
-    rng: np.random.Generator | None = None,
-    subject=None,
-) -> MarkerCapture:
-    """Run the whole pipeline on frames (``C`` iterables of images, synchronised)."""
-    params = params or MarkerPipelineParams()
-    stream = DetectionStream(len(calibration), params.detection)
-    for images in zip(*frames_per_camera):
-        stream.add(images)
-    n = len(stream.detections[0])
-    return capture_from_detections(stream.detections, calibration, template, np.asarray(times, float)[:n], params,
-                                   rng, subject, stream.ms)
 
 
 def export_capture(capture: MarkerCapture, out_dir: str | Path, calibration: Calibration, subject=None) -> dict[str, Path]:
