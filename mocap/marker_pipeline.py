@@ -95,7 +95,7 @@ class MarkerCapture:
         triangulation (after 3D-guided re-association), ``predicted_xy``/``status`` the
         2D trackers' own estimates
     trajectories : labelled 3D trajectories ``(F, M, 3)`` metres
-    skeleton : solved skeleton (``mocap.skeleton.SkeletonFit``) or None
+    skeleton : solved skeleton (``mocap.skeleton_fit.SkeletonFit``) or None
     timings_ms : stage name -> total milliseconds
     """
 

@@ -13,7 +13,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
-from mocap.skeleton import IKParams, SkeletonSolver, mujoco_from_pinocchio_q, pinocchio_from_mujoco_q, solve_skeleton
+from mocap.skeleton import IKParams, SkeletonSolver, solve_skeleton
+from mocap.skeleton_fit import mujoco_from_pinocchio_q, pinocchio_from_mujoco_q
 from mocap.skeleton_bridge import bridge_undetermined_hinges
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories

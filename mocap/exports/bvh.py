@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
 from mocap.exports._common import _Z_UP_TO_Y_UP, _atomic_target, _rate
-from mocap.skeleton import KinematicTree, SkeletonFit
+from mocap.skeleton_fit import KinematicTree, SkeletonFit
 from mocap.subject import SubjectModel
 
 _AXIS_NAMES = "XYZ"
