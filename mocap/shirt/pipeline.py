@@ -47,6 +47,9 @@ first four, the last two belong to the pose prior):
   (``lock_on_passes``);
 * step 0's coarse mask loses the crop pixels that look as in the empty scene
   (:meth:`mocap.shirt.background.BackgroundModel.empty_match`);
+* the patch split leaves out each colour's classified pieces thinner than 3 working
+  pixels throughout (``thin_bits_out``): a one-pixel rim of mixed colours along a prop
+  against the set passed as a forearm's colour and pulled its centroid;
 * the white balance (section 5.1 and step 5) is least squares in each colour's
   Mahalanobis metric (:func:`mocap.shirt.colour_model.solve_white_balance`), the metric
   the classifier thresholds.
@@ -117,6 +120,25 @@ def _without_thin_bits(colour: np.ndarray) -> np.ndarray:
     mask = (colour >= 0).astype(np.uint8)
     kept = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
     return np.where(kept, colour, -1).astype(colour.dtype)
+
+
+def _without_stray_thin_bits(colour: np.ndarray) -> np.ndarray:
+    """Classified map without the pixels of each colour that lie in its connected components (8-connected)
+    thinner than 3 pixels everywhere: those with no pixel that the opening of :func:`_without_thin_bits`
+    (the classified mask, all colours together) keeps.
+
+    A rim of mixed pixels along an outline goes; a limb seen 1-2 pixels wide at its end stays
+    with the thicker part of its colour it joins.
+    """
+    opened = _without_thin_bits(colour)
+    out = colour.copy()
+    for k in np.unique(colour[(colour >= 0) & (opened < 0)]):
+        mask = colour == k
+        n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        thick = np.zeros(n, bool)
+        thick[np.unique(lab[opened == k])] = True
+        out[mask & ~thick[lab]] = -1
+    return out
 
 
 def _border_band(size: int, band: int = 2) -> np.ndarray:
@@ -726,6 +748,10 @@ class ShirtTracker:
         """Centroid constraints of one camera: classified colours split into patches by a rendered pose;
         absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer than min_patch_pixels)."""
         p = self.params
+        if p.thin_bits_out:
+            # mixed pixels along an outline (a prop held against a box of the set's colour) can pass as a
+            # patch's colour within its gate and pull its centroid (issue 18: shirt_office seeds 3 and 19)
+            colour = _without_stray_thin_bits(colour)
         # pdist is in working pixels; the gate is a fraction of the shirt's size
         pm = assign_patches(colour, idx, pdist, self.model.patch_colour, gate=p.patch_gate * o.tiny.side)
         cents, counts = patch_centroids(pm, self.model.n_patches)

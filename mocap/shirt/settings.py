@@ -128,6 +128,16 @@ class ShirtPipelineParams:
         term pulling it inside the seen shirt (where it can be hidden).  An addition to
         the paper's centroid constraints: without it a limb seen by one camera only can
         swing along that camera's rays.
+    thin_bits_out : bool
+        Leave out of the patch split each colour's connected pieces (8-connected) that
+        are thinner than 3 working pixels throughout: none of their pixels survives a
+        morphological opening of the classified mask, all colours together (both
+        methods).  An addition to the paper: in shirt_office seeds 3 and 19 the mixed
+        pixels along a racket's outline against a yellow box of the set were classified as
+        the left forearm's yellow, within its gate, and pulled its centroid 30-80 px off;
+        the IK laid the forearm along the other camera's ray (up to 45 cm off for 13
+        frames).  A forearm seen 1-2 pixels wide at its end (a wide crop) stays: it joins
+        the thicker part of its colour.
     global_fit_std : float
         Assumed error of the blended pose's centroids, in shirt sizes (6-DoF fit weights).
     baseline_damping_std : float
@@ -175,6 +185,7 @@ class ShirtPipelineParams:
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
+    thin_bits_out: bool = True
     patch_gate: float = 0.2
     global_fit_std: float = 0.03
     baseline_damping_std: float = 3.0

@@ -1,0 +1,119 @@
+"""The colour shirt's patch-centroid constraints: the classified colours split into patches by a rendered pose."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from mocap.calib.synthetic import look_at
+from mocap.calibration import Calibration, Camera
+from mocap.shirt.classify import distance_to_patches, patch_centroids
+from mocap.shirt.colour_model import ColourModel
+from mocap.shirt.ik import IKPriors
+from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker, _reduced
+from mocap.shirt.settings import CameraObservation
+from mocap.shirt.shirt_model import CropView
+from simbench.pipelines.shirt_database import PoseSampling, build_database
+from simbench.scenes.anthropometry import BodyParams
+
+
+@pytest.fixture(scope="module")
+def tracker_and_camera():
+    db = build_database(BodyParams(), PoseSampling(n_poses=60, seed=3))
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    R, t = look_at(np.array([2.1, -0.95, 1.55]), np.array([0.0, 0.0, 1.2]))
+    cam = Camera("right", (640, 480), K, np.zeros(5), R, t)
+    k, p = db.n_colours, db.geometry.n_patches
+    colours = ColourModel(np.random.default_rng(0).random((k, 3)), np.repeat(np.eye(3)[None] * 1e-3, k, axis=0),
+                          tuple(db.geometry.colour_names))
+    priors = IKPriors(np.repeat(np.eye(2)[None] * 1e-4, p, axis=0), np.ones(17), np.ones(17))
+
+    def make(params: ShirtPipelineParams) -> ShirtTracker:
+        return ShirtTracker(db, colours, priors, Calibration((cam,)), [np.eye(3)], replace(params, arm_search=False))
+
+    return make, cam
+
+
+def _forearm_target(tracker: ShirtTracker, cam: Camera, q: np.ndarray, colour: np.ndarray, view: CropView) -> np.ndarray:
+    """Image target of the left forearm's patch in the constraints of one camera whose classification is ``colour``."""
+    model = tracker.model
+    rend = model.render_camera(q, cam, _reduced(view, tracker.params.render_size))
+    idx = np.arange(view.size * view.size)
+    pdist = distance_to_patches(rend.patch, model.n_patches, idx, view.size, tracker.params.distance_reduce)
+    o = CameraObservation(view=view, tiny=SimpleNamespace(side=80.0))
+    cons = tracker._camera_constraints(0, o, colour, idx, pdist, rend)
+    forearm = model.geometry.body_names.index("forearm_l")
+    patch = int(np.unique(model.face_patch[(model.face_body == forearm) & (model.face_patch >= 0)])[0])
+    i = np.flatnonzero(cons.patch == patch)
+    assert len(i) == 1 and not cons.absent[i[0]]
+    return cons.target_px[i[0]]
+
+
+def test_a_one_pixel_rim_of_a_patch_colour_does_not_pull_its_centroid(tracker_and_camera):
+    """Issue 18, shirt_office seeds 3 and 19: mixed pixels along a prop's outline against a yellow box of
+    the set were classified as the yellow of the left forearm; within the patch gate of the forearm, they
+    pulled its centroid 30-80 px off and the IK laid the forearm along the other camera's ray (45 cm off).
+    With each colour's pieces thinner than 3 pixels throughout left out of the patch split, the target is
+    the forearm's own centroid; with them, it moves towards the rim."""
+    make, cam = tracker_and_camera
+    base = make(ShirtPipelineParams())
+    kin = base.kin
+    q = kin.make_q(np.eye(3), np.array([0.0, 0.0, 0.93]), np.zeros(len(kin.lower)))
+    q[7 + 3: 7 + 7] = [0.0, 0.0, -0.8, 0.5]                 # left arm raised sideways, elbow bent
+    view = CropView(97.0, 22.0, 430.0 / 144, 144)       # the shirt and its arms
+    clean = base.model.render_camera(q, cam, view).colour.astype(np.int16)
+    forearm = base.model.geometry.body_names.index("forearm_l")
+    patch = int(np.unique(base.model.face_patch[(base.model.face_body == forearm) & (base.model.face_patch >= 0)])[0])
+    yellow = int(base.model.patch_colour[patch])
+    # the true centroid of the forearm's patch as rendered
+    true_c, n = patch_centroids(base.model.render_camera(q, cam, view).patch, base.model.n_patches)
+    assert n[patch] > 30
+    true_px = view.to_image(true_c[patch])
+    # a one-pixel ring of that colour next to the forearm's end, on unclassified pixels, inside the gate
+    ys, xs = np.nonzero(clean == yellow)
+    end = xs >= np.percentile(xs, 80)
+    fx, fy = xs[end].mean(), ys[end].mean()
+    yy, xx = np.mgrid[:144, :144]
+    r = np.hypot(xx - (fx + 12), yy - fy)
+    ring = (np.abs(r - 5) < 0.5) & (clean < 0)
+    assert ring.sum() > 20
+    noisy = np.where(ring, yellow, clean).astype(np.int16)
+    clean_t = _forearm_target(base, cam, q, clean, view)
+    assert np.linalg.norm(clean_t - true_px) < 1.0
+    kept = make(replace(ShirtPipelineParams(), thin_bits_out=False))
+    pulled = _forearm_target(kept, cam, q, noisy, view)
+    assert np.linalg.norm(pulled - true_px) > 5.0
+    assert np.linalg.norm(_forearm_target(base, cam, q, noisy, view) - true_px) < 1.0
+
+
+def test_a_forearm_seen_thin_at_its_end_still_counts_whole(tracker_and_camera):
+    """A forearm whose distal half is seen 1 pixel wide (a wide crop, a limb edge-on) joins the thick
+    half of its colour: its pixels stay in the patch split and the target is the centroid of both."""
+    make, cam = tracker_and_camera
+    base = make(ShirtPipelineParams())
+    kin, model = base.kin, base.model
+    q = kin.make_q(np.eye(3), np.array([0.0, 0.0, 0.93]), np.zeros(len(kin.lower)))
+    q[7 + 3: 7 + 7] = [0.0, 0.0, -0.8, 0.5]
+    view = CropView(97.0, 22.0, 430.0 / 144, 144)
+    rend = model.render_camera(q, cam, view)
+    forearm = model.geometry.body_names.index("forearm_l")
+    patch = int(np.unique(model.face_patch[(model.face_body == forearm) & (model.face_patch >= 0)])[0])
+    ys, xs = np.nonzero(rend.patch == patch)
+    a, b = np.argmin(xs), np.argmax(xs)
+    mid = np.median(xs)
+    colour = np.where((rend.patch == patch) & (np.arange(144)[None, :] >= mid), -1, rend.colour).astype(np.int16)
+    line = np.zeros(colour.shape, np.uint8)
+    cv2.line(line, (int(xs[a]), int(ys[a])), (int(xs[b]), int(ys[b])), 1, 1)
+    thin = (line > 0) & (rend.patch == patch) & (np.arange(144)[None, :] >= mid)
+    assert thin.sum() > 8
+    colour[thin] = model.patch_colour[patch]
+    whole = (colour == model.patch_colour[patch]) & (rend.patch == patch)
+    thick_only = whole & ~thin
+    centre = lambda m: view.to_image(np.array([np.nonzero(m)[1].mean(), np.nonzero(m)[0].mean()]))
+    assert np.linalg.norm(centre(whole) - centre(thick_only)) > 2.0
+    target = _forearm_target(base, cam, q, colour, view)
+    assert np.linalg.norm(target - centre(whole)) < 1.0
