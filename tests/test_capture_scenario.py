@@ -219,6 +219,50 @@ def test_user_errors_name_the_field(tmp_path):
     p.write_text('name = "g"\n[motion]\ngaps = { fraction = 0.2 }\n')
     with pytest.raises(ScenarioError, match=r"capture file only"):
         load_scenario(p)
+    p.write_text('name = "d"\n[motion]\nmarker_diameter_mm = 5.0\n')
+    with pytest.raises(ScenarioError, match=r"marker_diameter_mm.*capture file only"):
+        load_scenario(p)
+    for bad in ("0.5", "120.0", "-5.0"):
+        with pytest.raises(ScenarioError, match=r"motion.marker_diameter_mm"):
+            _scenario(tmp_path, f'c3d = "{QUALISYS}"\nmarker_diameter_mm = {bad}')
+
+
+def test_marker_diameter_is_the_rendered_and_expected_marker_size(tmp_path):
+    """`motion.marker_diameter_mm`: a capture rendered with its system's marker size (here 5 mm
+    LEDs, not the bench's 14 mm spheres). The spheres drawn have that size (the ground truth's
+    visible fraction, drawn area over the area a sphere of that size covers, is about 1 for
+    unoccluded markers, where the 14 mm expectation would give 0.13), the marker pipeline is
+    given the same size, the IR detector finds the 1.1-1.3 px blobs, and a scenario without the
+    field keeps the 14 mm spheres and its content hash."""
+    from mocap.detection import DetectionParams, detect_markers
+    from simbench.pipelines.markers import pipeline_params
+    from simbench.scenes.markers import MARKER_RADIUS_M
+
+    head = "seed = 5\nfps = 100.0\nduration_s = 0.03"
+    sc = _scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.5\nmarker_diameter_mm = 5.0', head, name="led")
+    bench = build_stage(sc)
+    assert bench.marker_radius_m == pytest.approx(0.0025)
+    params = pipeline_params(sc)
+    assert params.marker_radius_m == pytest.approx(0.0025) and params.reassociation.marker_radius_m == pytest.approx(0.0025)
+    seq = render_frames(bench, keep_frames=True, keep_ids=True)
+    gt = seq.ground_truth
+    frac = gt.marker_visible_frac[gt.marker_visible_frac > 0]
+    assert 0.85 <= np.median(frac) <= 1.15, np.median(frac)
+    assert (gt.marker_visible.sum(axis=1) >= 2).mean() > 0.8  # as at 14 mm (test_absent_samples_are_not_rendered)
+    found = visible = 0
+    for f in range(gt.n_frames):
+        for c in range(len(gt.camera_names)):
+            det = detect_markers(seq.frames[f, c], DetectionParams(mode="ir"))
+            truth = gt.markers_2d[f, c, gt.marker_visible[f, c]]
+            visible += len(truth)
+            if len(det):
+                found += int((np.linalg.norm(truth[:, None] - det.xy[None], axis=2).min(axis=1) < 1.0).sum())
+    print(f"\n5 mm markers: 2D recall {found}/{visible}, median visible fraction {np.median(frac):.2f}")
+    assert found >= 0.95 * visible
+    plain = _scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.5', head, name="plain")
+    assert build_stage(plain).marker_radius_m == MARKER_RADIUS_M and pipeline_params(plain).marker_radius_m == MARKER_RADIUS_M
+    assert "marker_diameter_mm" not in plain.model_dump(mode="json")["motion"]
+    assert "marker_diameter_mm" in sc.model_dump(mode="json")["motion"]
 
 
 def test_reference_frame_and_label_template():

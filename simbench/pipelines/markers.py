@@ -15,6 +15,7 @@ from mocap.subject import SubjectModel
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
 from simbench.scenes.markers import MARKER_RADIUS_M
+from mocap.reassociation import ReassociationParams
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
@@ -48,13 +49,18 @@ def subject_model(stage: Stage) -> SubjectModel | None:
 def pipeline_params(sc: Scenario) -> MarkerPipelineParams:
     """The marker pipeline's settings from the scenario's ``[markers_pipeline]`` and sensor mode."""
     cfg = sc.markers_pipeline
+    # The rendered markers' size, as a user gives their markers' size: a capture's own
+    # (`motion.marker_diameter_mm`), else the bench's 14 mm spheres.
+    d = sc.motion.marker_diameter_mm
+    radius = MARKER_RADIUS_M if d is None else 0.5e-3 * float(d)
     return MarkerPipelineParams(
         detection=DetectionParams(mode=sc.sensor.mode),
         labelling=cfg.labelling,
         tracker=cfg.tracker,
         reconstruction=ReconstructionParams(smoothing=cfg.smoothing, max_gap_frames=cfg.max_gap_frames),
         solve_skeleton=cfg.solve_skeleton,
-        marker_radius_m=MARKER_RADIUS_M,  # the bench's spheres; a user gives their markers' size
+        marker_radius_m=radius,
+        reassociation=ReassociationParams(marker_radius_m=radius),
     )
 
 

@@ -71,6 +71,11 @@ class CaptureGapsConfig(FrozenModel):
 
 _CAPTURE_FIELDS = {"c3d": None, "trc": None, "labels": None, "up_axis": "auto", "gaps": None}
 _BVH_FIELDS = {"end": "error", "name_map": {}}  # omitted from the dump at their defaults, as the capture fields
+#: Capture fields added after capture scenarios' content hashes were recorded: omitted at their defaults.
+_LATER_CAPTURE_FIELDS = {"marker_diameter_mm": None}
+#: The rendered markers' diameter a capture may ask for: from a 3 mm LED (a sub-pixel blob beyond a
+#: few metres, which the IR detector still takes) to a 40 mm sphere.
+CAPTURE_MARKER_DIAMETER_MM = (3.0, 40.0)
 
 
 class MotionConfig(FrozenModel):
@@ -84,6 +89,10 @@ class MotionConfig(FrozenModel):
     labels: tuple[str, ...] | None = Field(None, description="c3d/trc: the markers to render (default: every physical marker)")
     up_axis: Literal["auto", "x", "y", "z"] = Field("auto", description="c3d/trc: the file's up axis (auto: from the file)")
     gaps: CaptureGapsConfig | None = Field(None, description="c3d/trc: seeded artificial gaps")
+    marker_diameter_mm: Real | None = Field(
+        None, ge=CAPTURE_MARKER_DIAMETER_MM[0], le=CAPTURE_MARKER_DIAMETER_MM[1],
+        description="c3d/trc: diameter of the rendered marker spheres, the capture system's marker size "
+        "(default: the bench's 14 mm spheres); the marker pipeline is given the same size")
     end: Literal["error", "hold", "loop"] = Field(
         "error", description="bvh: a clip shorter than start_s + duration_s * speed is an error, holds its last pose, "
         "or starts again from its first frame (the pose jumps there unless the clip is a cycle)")
@@ -129,7 +138,7 @@ class MotionConfig(FrozenModel):
                 raise ValueError(f"clip = {self.clip!r} conflicts with `{capture}`; leave clip out")
             object.__setattr__(self, "clip", capture)  # says what drives the scene (`simbench info`)
         else:
-            extra = [k for k in ("labels", "gaps") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
+            extra = [k for k in ("labels", "gaps", "marker_diameter_mm") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
             if extra:
                 raise ValueError(f"{', '.join(extra)} apply to a capture file only; give `c3d` or `trc`")
         return self
@@ -140,7 +149,7 @@ class MotionConfig(FrozenModel):
         data = handler(self)
         if not (self.c3d or self.trc):
             data = omit_defaults(data, _CAPTURE_FIELDS)
-        return omit_defaults(data, _BVH_FIELDS)
+        return omit_defaults(omit_defaults(data, _BVH_FIELDS), _LATER_CAPTURE_FIELDS)
 
 
 class ClockConfig(FrozenModel):

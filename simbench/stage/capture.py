@@ -11,7 +11,8 @@ humanoid's marker sites:
   :data:`PARK_HEIGHT_M` above the floor, out of reach of any prop. Props still work.
 * :meth:`CaptureStage.states` returns the capture's marker positions (NaN where missing)
   and NaN for the humanoid's qpos and joint centres: there is no body to score.
-* The renderer draws each marker at its position, and nothing where the position is NaN,
+* The renderer draws each marker at its position, a sphere of ``motion.marker_diameter_mm``
+  (the capture system's marker size; default the bench's 14 mm), and nothing where the position is NaN,
   so a missing sample is an absent marker in the frames and in the ground truth's
   visibility (its visible fraction is 0).
 """
@@ -207,6 +208,13 @@ class CaptureStage(Stage):
         qpos[:, :NQ] = np.nan
         return dataclasses.replace(st, marker_xpos=self.clip.positions_at(st.times), qpos=qpos,
                                    joint_centres=np.full_like(st.joint_centres, np.nan), marker_names=self.clip.labels)
+
+    @property
+    def marker_radius_m(self) -> float:
+        """Half the scenario's ``motion.marker_diameter_mm`` (the capture system's markers), else
+        the bench's 14 mm spheres."""
+        d = self.scenario.motion.marker_diameter_mm
+        return super().marker_radius_m if d is None else 0.5e-3 * float(d)
 
     def frame_renderer(self, rasterizer=None) -> FrameRenderer:
         renderer = super().frame_renderer(rasterizer)

@@ -166,9 +166,16 @@ class Stage:
         sc = self.scenario
         prop_meshes = [(p.mesh(), np.asarray(p.rgb, float), idc.PROP_BASE + k) for k, p in enumerate(self.scene.props)]
         body_index = {name: self.scene.body_id(name) for name in BODY_NAMES}
-        moving = moving_geometry(self.scene.surface_parts, body_index, len(self.marker_names), prop_meshes, MARKER_RADIUS_M)
+        moving = moving_geometry(self.scene.surface_parts, body_index, len(self.marker_names), prop_meshes,
+                                 self.marker_radius_m)
         return build_frame_renderer(self.cameras, sc.sensor, sc.fps, self.lighting, sc.set, sc.seed, moving,
-                                    len(self.marker_names), MARKER_RADIUS_M, rasterizer=rasterizer)
+                                    len(self.marker_names), self.marker_radius_m, rasterizer=rasterizer)
+
+    @property
+    def marker_radius_m(self) -> float:
+        """The rendered marker spheres' radius: the bench's 14 mm spheres (a capture scenario may
+        give its system's size, :class:`~simbench.stage.capture.CaptureStage`)."""
+        return MARKER_RADIUS_M
 
     @property
     def hinge_names(self) -> list[str]:
