@@ -3,6 +3,7 @@ skeleton (:func:`mocap.model_labelling.label_points`), learned from a labelled t
 
 from __future__ import annotations
 
+from itertools import combinations
 from typing import Sequence
 
 import numpy as np
@@ -12,16 +13,44 @@ from mocap.model_labelling import assign_to_predictions, constant_velocity, kabs
 __all__ = ["ClusterMarkerModel"]
 
 
+def _prediction_rms(xyz: np.ndarray, ok: np.ndarray, m: int, nb: np.ndarray) -> tuple[float, int] | None:
+    """How well neighbours ``nb`` predict marker ``m`` over a labelled trial ``xyz (F, M, 3)``
+    (``ok``: seen): ``(RMS error m, reference frame)``, the reference being the middle frame
+    where all of them are seen and the error taken over up to ~100 such frames by the rigid
+    (Kabsch) motion of the neighbours from the reference; None where no frame has them all."""
+    frames = np.flatnonzero(ok[:, m] & ok[:, nb].all(axis=1))
+    if frames.size == 0:
+        return None
+    f0 = int(frames[frames.size // 2])
+    use = frames[:: max(1, frames.size // 100)]
+    src, dst = xyz[f0, nb], xyz[use][:, nb]                              # (k, 3), (T, k, 3)
+    cs, cd = src.mean(axis=0), dst.mean(axis=1)
+    H = np.einsum("ki,tkj->tij", src - cs, dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    d = np.sign(np.linalg.det(V @ np.swapaxes(U, 1, 2)))
+    D = np.zeros((len(use), 3, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = V @ D @ np.swapaxes(U, 1, 2)                                      # (T, 3, 3): dst ~ R src + t
+    pred = np.einsum("tij,j->ti", R, xyz[f0, m] - cs) + cd
+    err = np.linalg.norm(pred - xyz[use, m], axis=1)
+    return float(np.sqrt(np.mean(err**2))), f0
+
+
 class ClusterMarkerModel:
     """Markers predicted from their most rigid neighbours, learned from a labelled trial.
 
     For captures without a skeleton: a *subject calibration* as commercial systems make it from a
-    labelled range-of-motion trial. For every marker, the ``n_neighbours`` markers whose distance
-    to it varies least over the trial are its neighbours; the marker is predicted from their
+    labelled range-of-motion trial. The marker is predicted from its ``n_neighbours`` neighbours'
     current positions by the rigid (Kabsch) motion that takes their reference positions there,
-    with at least three of them seen. Its gate is ``min_gate_m`` plus three times that
-    prediction's RMS error over the trial, so a marker on soft tissue gets a wider gate than one
-    on a rigid cluster. While tracking, two labelled neighbours closer than their gates exchange
+    with at least three of them seen. Its neighbours are, among the ``n_neighbours + n_spare``
+    markers whose distance to it varies least over the trial, the ``n_neighbours`` that predict
+    it best over the trial: a distance can stay constant while its direction turns (trc_sprint_start:
+    the left acromion, 73 cm from the right wrist, distance SD 2.6 mm, made the wrist's prediction
+    27-29 mm wrong as the sprinter rose; 4-6 mm without it). Its gate is ``min_gate_m`` plus three
+    times that prediction's RMS error over the trial, so a marker on soft tissue gets a wider gate
+    than one on a rigid cluster. While tracking, two labelled neighbours closer than their gates exchange
     points where the model fits the exchange clearly better (:meth:`exchange_neighbours`).
 
     Parameters
@@ -29,9 +58,13 @@ class ClusterMarkerModel:
     labels : M names
     xyz : (F, M, 3) float
         The labelled trial, metres, NaN where a marker was not seen.
+    n_spare : int
+        Candidates beyond ``n_neighbours`` tried for each marker's neighbours (0: the least
+        varying distances alone).
     """
 
-    def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01) -> None:
+    def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01,
+                 n_spare: int = 3) -> None:
         xyz = np.asarray(xyz, dtype=np.float64)
         F, M, _ = xyz.shape
         if M != len(labels):
@@ -49,24 +82,27 @@ class ClusterMarkerModel:
         var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
         std = np.where(cnt >= max(3, len(X) // 5), np.sqrt(var), np.inf)
         np.fill_diagonal(std, np.inf)
-        self.neighbours = np.argsort(std, axis=1)[:, :n_neighbours]          # (M, k)
-        self.neighbour_std_m = np.take_along_axis(std, self.neighbours, axis=1)
-        # Reference: for each marker, a frame where it and all its neighbours are seen.
+        # Neighbours: among the ``n_neighbours + n_spare`` markers whose distance to the marker varies
+        # least, the ``n_neighbours`` whose rigid motion predicts it best over the trial.
+        ranked = np.argsort(std, axis=1)
+        self.neighbours = ranked[:, :n_neighbours].copy()                     # (M, k)
         self.ref_self = np.full((M, 3), np.nan)
         self.ref_nb = np.full((M, n_neighbours, 3), np.nan)
         self.gate_m = np.full(M, np.inf)
         for m in range(M):
-            nb = self.neighbours[m]
-            frames = np.flatnonzero(ok[:, m] & ok[:, nb].all(axis=1))
-            if frames.size == 0 or not np.isfinite(self.neighbour_std_m[m]).all():
+            pool = [int(j) for j in ranked[m, : n_neighbours + n_spare] if np.isfinite(std[m, j])]
+            best = None
+            for nb in combinations(pool, n_neighbours):
+                fit = _prediction_rms(xyz, ok, m, np.array(nb))
+                if fit is not None and (best is None or fit[0] < best[0] - 1e-12):
+                    best = (fit[0], fit[1], np.array(nb))
+            if best is None:
                 continue
-            f0 = frames[frames.size // 2]
+            rms, f0, nb = best
+            self.neighbours[m] = nb
             self.ref_self[m], self.ref_nb[m] = xyz[f0, m], xyz[f0, nb]
-            errs = []
-            for f in frames[:: max(1, frames.size // 100)]:
-                R, t = kabsch(self.ref_nb[m], xyz[f, nb])
-                errs.append(np.linalg.norm(self.ref_self[m] @ R.T + t - xyz[f, m]))
-            self.gate_m[m] = min_gate_m + 3.0 * float(np.sqrt(np.mean(np.square(errs))))
+            self.gate_m[m] = min_gate_m + 3.0 * rms
+        self.neighbour_std_m = np.take_along_axis(std, self.neighbours, axis=1)
 
     def markers(self, state: np.ndarray) -> np.ndarray:
         return state

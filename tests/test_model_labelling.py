@@ -294,3 +294,54 @@ def test_neighbours_exchange_points_only_where_the_model_clearly_fits_better() -
     local, model = _soft_tissue_cluster(0.003)
     points = local @ Rotation.from_euler("xyz", [0.3, -0.5, 1.0]).as_matrix().T + [0.2, 0.1, 0.9]
     assert model.exchange_neighbours(crossed, points).tolist() == crossed.tolist()
+
+
+SPRINT_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "trc_sprint_start.toml"
+SPRINT_TRC = C3D_DIR.parent / "trc" / "SprintMotion.trc"
+
+
+def _sprint_points() -> tuple[object, list[UnlabelledPoints], int]:
+    """trc_sprint_start's capture reference, and its unlabelled points of frames 270-311 (6 cameras,
+    stored in tests/data from the scenario's run at 243a633)."""
+    from simbench.scenario import load_scenario
+    from simbench.stage.build import build_stage
+
+    ref = build_stage(load_scenario(SPRINT_SCENARIO)).capture_reference()
+    z = np.load(Path(__file__).parent / "data" / "sprint_points_270_312.npz")
+    ends = np.cumsum(z["counts"])
+    frames = [UnlabelledPoints(z["xyz"][a:b].astype(float), np.full((b - a, 6), -1), z["n_views"][a:b].astype(int),
+                               np.zeros(b - a), z["ambiguous"][a:b]) for a, b in zip(ends - z["counts"], ends)]
+    return ref, frames, int(z["first"])
+
+
+def _wrong_labels(frames: list[UnlabelledPoints], truth: np.ndarray, model: ClusterMarkerModel) -> list[tuple[int, str]]:
+    """(frame, label) of every label on a point more than 10 mm from its marker."""
+    result = label_points(frames, model)
+    return [(f, model.labels[m]) for f, fr in enumerate(frames) for m, i in enumerate(result.point_index[f])
+            if i >= 0 and np.isfinite(truth[f, m]).all() and np.linalg.norm(fr.xyz[i] - truth[f, m]) > 0.01]
+
+
+@pytest.mark.skipif(not SPRINT_TRC.is_file(), reason="shared real data not found")
+def test_neighbours_are_those_that_predict_the_marker_best() -> None:
+    """trc_sprint_start: R.Wrist.Rad's four least varying distances included L.AA, the left
+    acromion 73 cm away (distance SD 2.6 mm over the take). As the sprinter rises (frames 300-304)
+    those four predicted the wrist 27-29 mm from its place even from their true positions (4-6 mm
+    without L.AA), the veto took R.Wrist.Rad's label at frame 301 (gate 29.0 mm), and R.Wrist.Uln,
+    predicted from three neighbours nearly along the forearm, took its point 53-62 mm away for
+    frames 304-309: the take's one swap. Neighbours are now, among the seven least varying
+    distances, the four whose rigid motion predicts the marker best over the trial."""
+    ref, frames, first = _sprint_points()
+    truth = ref.xyz[first:first + len(frames)]
+    model = ref.marker_model()
+    L = model.labels
+    rad, uln = L.index("R.Wrist.Rad"), L.index("R.Wrist.Uln")
+    assert "L.AA" not in [L[k] for k in model.neighbours[rad]]
+    for f in range(300, 305):  # from their neighbours' true positions, the wrist markers are predicted inside their gates
+        err = np.linalg.norm(model.predict(ref.xyz[f], [rad, uln]) - ref.xyz[f, [rad, uln]], axis=1)
+        assert err[0] < 0.5 * model.gate_m[rad] and err[1] < model.gate_m[uln], (f, err)
+    assert _wrong_labels(frames, truth, model) == []
+    # The least varying distances alone (no spare candidates) give the old neighbours and the swap.
+    old = ClusterMarkerModel(L, ref.xyz, n_spare=0)
+    assert "L.AA" in [L[k] for k in old.neighbours[rad]]
+    wrong = _wrong_labels(frames, truth, old)
+    assert {n for _, n in wrong} == {"R.Wrist.Uln"} and len(wrong) >= 5
