@@ -10,12 +10,12 @@ from eval import marker_metrics, skeleton_metrics
 from mocap.detection import DetectionParams
 from mocap.labelling import LabelTemplate
 from mocap.marker_pipeline import MarkerCapture, MarkerPipelineParams
+from mocap.reassociation import ReassociationParams
 from mocap.reconstruction import ReconstructionParams
 from mocap.subject import SubjectModel
 from simbench.scenario import Scenario
 from simbench.scenes.humanoid import humanoid_mjcf, tpose_qpos
 from simbench.scenes.markers import MARKER_RADIUS_M
-from mocap.reassociation import ReassociationParams
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
