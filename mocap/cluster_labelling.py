@@ -44,13 +44,14 @@ class ClusterMarkerModel:
     For captures without a skeleton: a *subject calibration* as commercial systems make it from a
     labelled range-of-motion trial. The marker is predicted from its ``n_neighbours`` neighbours'
     current positions by the rigid (Kabsch) motion that takes their reference positions there,
-    with at least three of them seen. Its neighbours are, among the ``n_neighbours + n_spare``
-    markers whose distance to it varies least over the trial, the ``n_neighbours`` that predict
-    it best over the trial: a distance can stay constant while its direction turns (trc_sprint_start:
-    the left acromion, 73 cm from the right wrist, distance SD 2.6 mm, made the wrist's prediction
-    27-29 mm wrong as the sprinter rose; 4-6 mm without it). Its gate is ``min_gate_m`` plus three
-    times that prediction's RMS error over the trial, so a marker on soft tissue gets a wider gate
-    than one on a rigid cluster. While tracking, two labelled neighbours closer than their gates exchange
+    with at least three of them seen. Its neighbours are the markers whose distance to it varies
+    least over the trial, taken first among those within ``max_reach_m`` (0.5 m, about a body
+    segment) on average: a far marker's distance can stay constant while its direction turns
+    (trc_sprint_start: the left acromion, 73 cm from the right wrist, distance SD 2.6 mm, made the
+    wrist's prediction 27-29 mm wrong as the sprinter rose, 4-6 mm without it; c3d_walking2: the
+    neck marker C7 predicting a shank marker gave it a 309 mm gate). Its gate is ``min_gate_m``
+    plus three times that prediction's RMS error over the trial, so a marker on soft tissue gets a
+    wider gate than one on a rigid cluster. While tracking, two labelled neighbours closer than their gates exchange
     points where the model fits the exchange clearly better (:meth:`exchange_neighbours`).
 
     Parameters
@@ -58,13 +59,17 @@ class ClusterMarkerModel:
     labels : M names
     xyz : (F, M, 3) float
         The labelled trial, metres, NaN where a marker was not seen.
+    max_reach_m : float or None
+        Markers farther than this on average are neighbours only when too few nearer ones are
+        (None: by distance variation alone, as before).
     n_spare : int
-        Candidates beyond ``n_neighbours`` tried for each marker's neighbours (0: the least
-        varying distances alone).
+        Candidates beyond ``n_neighbours`` among which the ``n_neighbours`` that predict the marker
+        best over the trial are chosen (0: none). Tried at 3: worse on trc_ballet (1.68 mm, 1 swap)
+        and trc_sprint_start (0.947 reconstructed) than at 0 (0.27 mm; 0.997).
     """
 
     def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01,
-                 n_spare: int = 3) -> None:
+                 n_spare: int = 0, max_reach_m: float | None = 0.5) -> None:
         xyz = np.asarray(xyz, dtype=np.float64)
         F, M, _ = xyz.shape
         if M != len(labels):
@@ -82,9 +87,12 @@ class ClusterMarkerModel:
         var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
         std = np.where(cnt >= max(3, len(X) // 5), np.sqrt(var), np.inf)
         np.fill_diagonal(std, np.inf)
-        # Neighbours: among the ``n_neighbours + n_spare`` markers whose distance to the marker varies
-        # least, the ``n_neighbours`` whose rigid motion predicts it best over the trial.
-        ranked = np.argsort(std, axis=1)
+        # Neighbours: the markers whose distance to the marker varies least, those within
+        # ``max_reach_m`` first; with ``n_spare``, the ``n_neighbours`` of the first
+        # ``n_neighbours + n_spare`` that predict it best over the trial.
+        # Markers farther than ``max_reach_m`` on average come after every nearer one.
+        far = (mean > max_reach_m) if max_reach_m is not None else np.zeros_like(std, bool)
+        ranked = np.lexsort((std, np.where(np.isfinite(std), far.astype(int), 2)), axis=1)
         self.neighbours = ranked[:, :n_neighbours].copy()                     # (M, k)
         self.ref_self = np.full((M, 3), np.nan)
         self.ref_nb = np.full((M, n_neighbours, 3), np.nan)

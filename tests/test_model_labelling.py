@@ -315,21 +315,22 @@ def _sprint_points() -> tuple[object, list[UnlabelledPoints], int]:
 
 
 def _wrong_labels(frames: list[UnlabelledPoints], truth: np.ndarray, model: ClusterMarkerModel) -> list[tuple[int, str]]:
-    """(frame, label) of every label on a point more than 10 mm from its marker."""
+    """(frame, label) of every label on a point more than 20 mm (the swap radius) from its marker (at
+    frame 305 R.Wrist.Uln's own point, seen by three cameras, is 11 mm off)."""
     result = label_points(frames, model)
     return [(f, model.labels[m]) for f, fr in enumerate(frames) for m, i in enumerate(result.point_index[f])
-            if i >= 0 and np.isfinite(truth[f, m]).all() and np.linalg.norm(fr.xyz[i] - truth[f, m]) > 0.01]
+            if i >= 0 and np.isfinite(truth[f, m]).all() and np.linalg.norm(fr.xyz[i] - truth[f, m]) > 0.02]
 
 
 @pytest.mark.skipif(not SPRINT_TRC.is_file(), reason="shared real data not found")
-def test_neighbours_are_those_that_predict_the_marker_best() -> None:
+def test_far_markers_are_neighbours_only_when_too_few_are_near() -> None:
     """trc_sprint_start: R.Wrist.Rad's four least varying distances included L.AA, the left
     acromion 73 cm away (distance SD 2.6 mm over the take). As the sprinter rises (frames 300-304)
     those four predicted the wrist 27-29 mm from its place even from their true positions (4-6 mm
     without L.AA), the veto took R.Wrist.Rad's label at frame 301 (gate 29.0 mm), and R.Wrist.Uln,
     predicted from three neighbours nearly along the forearm, took its point 53-62 mm away for
-    frames 304-309: the take's one swap. Neighbours are now, among the seven least varying
-    distances, the four whose rigid motion predicts the marker best over the trial."""
+    frames 304-309: the take's one swap. Neighbours are now taken first among the markers within
+    0.5 m on average (``max_reach_m``)."""
     ref, frames, first = _sprint_points()
     truth = ref.xyz[first:first + len(frames)]
     model = ref.marker_model()
@@ -340,8 +341,8 @@ def test_neighbours_are_those_that_predict_the_marker_best() -> None:
         err = np.linalg.norm(model.predict(ref.xyz[f], [rad, uln]) - ref.xyz[f, [rad, uln]], axis=1)
         assert err[0] < 0.5 * model.gate_m[rad] and err[1] < model.gate_m[uln], (f, err)
     assert _wrong_labels(frames, truth, model) == []
-    # The least varying distances alone (no spare candidates) give the old neighbours and the swap.
-    old = ClusterMarkerModel(L, ref.xyz, n_spare=0)
+    # The least varying distances alone, however far, give the old neighbours and the swap.
+    old = ClusterMarkerModel(L, ref.xyz, max_reach_m=None)
     assert "L.AA" in [L[k] for k in old.neighbours[rad]]
     wrong = _wrong_labels(frames, truth, old)
     assert {n for _, n in wrong} == {"R.Wrist.Uln"} and len(wrong) >= 5
