@@ -209,15 +209,24 @@ class ClusterMarkerModel:
             group = np.concatenate([[m], self.neighbours[m]])
             free = np.ones(len(points), bool)
             free[idx[idx >= 0]] = False
+            # Members of the group labelled by an earlier seed anchor the match on their own points: a
+            # cluster whose other neighbours an earlier seed took (the head of c3d_sample_static, four
+            # markers and a torso marker) could otherwise never be matched (4 markers needed) nor
+            # grown (3 labelled neighbours needed), and stayed unlabelled through the take.
+            anchor = idx[group]
+            usable = free.copy()
+            usable[anchor[anchor >= 0]] = True
             local = np.vstack([self.ref_self[m], self.ref_nb[m]])
             tol = max(0.005, 3.0 * float(np.nanmax(self.neighbour_std_m[m])))
-            matches = match_rigid_cluster(local, points, tol, max_matches=2, allowed=free)
+            matches = match_rigid_cluster(local, points, tol, max_matches=2, allowed=usable)
             if not matches or int((matches[0][2] >= 0).sum()) < 4:
                 continue
             if len(matches) > 1 and int((matches[1][2] >= 0).sum()) == int((matches[0][2] >= 0).sum()) \
                     and matches[1][3] < 1.5 * matches[0][3]:
                 continue  # two places fit about as well (e.g. a left/right pair): not a seed
             mi = matches[0][2]
+            if ((anchor >= 0) & (mi >= 0) & (mi != anchor)).any() or (~free[mi[(mi >= 0) & (anchor < 0)]]).any():
+                continue  # a labelled member, or a labelled point, taken by another marker of the group
             for j, g in enumerate(group):
                 if mi[j] >= 0 and idx[g] < 0 and free[mi[j]]:
                     idx[g] = mi[j]
