@@ -51,8 +51,9 @@ class ClusterMarkerModel:
     wrist's prediction 27-29 mm wrong as the sprinter rose, 4-6 mm without it; c3d_walking2: the
     neck marker C7 predicting a shank marker gave it a 309 mm gate). Its gate is ``min_gate_m``
     plus three times that prediction's RMS error over the trial, so a marker on soft tissue gets a
-    wider gate than one on a rigid cluster. While tracking, two labelled neighbours closer than their gates exchange
-    points where the model fits the exchange clearly better (:meth:`exchange_neighbours`).
+    wider gate than one on a rigid cluster. While tracking, two labelled neighbours closer than
+    their gates exchange points where the model fits the exchange clearly better
+    (:meth:`exchange_neighbours`).
 
     Parameters
     ----------
@@ -88,9 +89,9 @@ class ClusterMarkerModel:
         std = np.where(cnt >= max(3, len(X) // 5), np.sqrt(var), np.inf)
         np.fill_diagonal(std, np.inf)
         # Neighbours: the markers whose distance to the marker varies least, those within
-        # ``max_reach_m`` first; with ``n_spare``, the ``n_neighbours`` of the first
-        # ``n_neighbours + n_spare`` that predict it best over the trial.
-        # Markers farther than ``max_reach_m`` on average come after every nearer one.
+        # ``max_reach_m`` on average first (then the farther ones, then those never seen with it);
+        # with ``n_spare``, the ``n_neighbours`` of the first ``n_neighbours + n_spare`` that
+        # predict it best over the trial.
         far = (mean > max_reach_m) if max_reach_m is not None else np.zeros_like(std, bool)
         ranked = np.lexsort((std, np.where(np.isfinite(std), far.astype(int), 2)), axis=1)
         self.neighbours = ranked[:, :n_neighbours].copy()                     # (M, k)
@@ -209,10 +210,10 @@ class ClusterMarkerModel:
             group = np.concatenate([[m], self.neighbours[m]])
             free = np.ones(len(points), bool)
             free[idx[idx >= 0]] = False
-            # Members of the group labelled by an earlier seed anchor the match on their own points: a
-            # cluster whose other neighbours an earlier seed took (the head of c3d_sample_static, four
-            # markers and a torso marker) could otherwise never be matched (4 markers needed) nor
-            # grown (3 labelled neighbours needed), and stayed unlabelled through the take.
+            # Members of the group labelled by an earlier seed anchor the match on their own points:
+            # a cluster whose other neighbours an earlier seed took (the head of c3d_sample_static,
+            # four markers and a torso marker) could otherwise never be matched (4 markers needed)
+            # nor grown (3 labelled neighbours needed), and stayed unlabelled through the take.
             anchor = idx[group]
             usable = free.copy()
             usable[anchor[anchor >= 0]] = True
