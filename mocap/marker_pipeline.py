@@ -50,8 +50,7 @@ class MarkerPipelineParams:
     check after the skeleton fit (:func:`mocap.model_check.robust_skeleton_fit`): points farther
     than ``model_outlier_mm`` from the fitted model are dropped one per frame and refit, for at
     most ``model_check_rounds`` rounds; a frame that needed more than ``model_check_max_drops``
-    drops loses every point the first fit missed. ``checked_passes`` more re-association passes
-    follow, each guided by the checked fit's markers and checked again.
+    drops loses every point the first fit missed.
 
     ``marker_radius_m``: the markers' radius (a 14 mm sphere: 0.007), 0 if unknown. With it,
     detections that measured their lit limb (the visible-light detector,
@@ -76,13 +75,11 @@ class MarkerPipelineParams:
     model_outlier_mm: float = 10.0
     model_check_rounds: int = 4
     model_check_max_drops: int = 2
-    checked_passes: int = 1
     swap_repair: SwapRepairParams | None = field(default_factory=SwapRepairParams)
     marker_radius_m: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.marker_radius_m >= 0, self, "marker_radius_m", "must be >= 0 m (0: markers' size unknown)")
-        require(int(self.checked_passes) >= 0, self, "checked_passes", "must be >= 0 (0: none)")
 
 
 @dataclass
@@ -286,16 +283,7 @@ def _solve_skeleton(passes: CapturePasses, subject, params: MarkerPipelineParams
     # returned interpolates the ones the markers leave undetermined (SkeletonSolver.solve's bridge).
     fit = solver.solve(passes.traj, bridge=False)
     _model_guided_passes(passes, solver, fit, params)
-    fit = _check_against_model(passes, solver, subject, params)
-    for _ in range(params.checked_passes):
-        # The checked fit has no wrong point left to pull it: its markers re-associate the
-        # detections once more (points the check dropped, and two-view markers the labeller
-        # left unpaired, come back where the model puts them), and the check runs again.
-        predicted = model_markers(solver, fit, passes.traj.labels)
-        passes.run(points=predicted, gate_px=np.full(predicted.shape[:2], params.model_gate_px), prefix="checked_",
-                   jumps=False)
-        fit = _check_against_model(passes, solver, subject, params)
-    return fit
+    return _check_against_model(passes, solver, subject, params)
 
 
 def _model_guided_passes(passes: CapturePasses, solver, fit, params: MarkerPipelineParams) -> None:
