@@ -108,18 +108,16 @@ def robust_skeleton_fit(traj: Trajectories, solver, max_mm: float, rounds: int =
     fallback = np.zeros_like(bad)
     fallback[untrusted] = over_first[untrusted] & ~bad[untrusted]
     bad |= fallback
-    kept = without_points(traj, bad)
-    if untrusted.any():
-        fit = solver.solve(kept, bridge=False)
-        fit, kept, _ = _readmit(traj, solver, fit, bad, fallback, limit)
-    return fit, kept
+    if not untrusted.any():
+        return fit, without_points(traj, bad)
+    return _readmit(traj, solver, solver.solve(without_points(traj, bad), bridge=False), bad, fallback, limit)
 
 
 def _readmit(traj: Trajectories, solver, fit, bad: np.ndarray, fallback: np.ndarray,
-             limit: np.ndarray) -> tuple[object, Trajectories, np.ndarray]:
+             limit: np.ndarray) -> tuple[object, Trajectories]:
     """Take back the points only the fallback dropped that the fit without every suspect point
     explains within the limit, in the frames where, refitted with them, every point kept still
-    fits; returns ``(fit, kept, bad)``.
+    fits; returns ``(fit, kept)``.
 
     The fallback drops every point the first fit missed, and that fit was pulled by the wrong
     ones: on the CMU walk seen by 4 cameras, 91 of 99 correct points it dropped were two-view
@@ -130,7 +128,7 @@ def _readmit(traj: Trajectories, solver, fit, bad: np.ndarray, fallback: np.ndar
     err = np.nan_to_num(model_error_mm(solver, fit, traj), nan=np.inf)
     back = fallback & (err <= limit)
     if not back.any():
-        return fit, without_points(traj, bad), bad
+        return fit, without_points(traj, bad)
     trial = bad & ~back
     refit = solver.solve(without_points(traj, trial), bridge=False)
     still = ~((np.nan_to_num(model_error_mm(solver, refit, traj), nan=0.0) > limit) & ~trial).any(axis=1)
@@ -138,4 +136,4 @@ def _readmit(traj: Trajectories, solver, fit, bad: np.ndarray, fallback: np.ndar
         back &= still[:, None]
         trial = bad & ~back
         refit = solver.solve(without_points(traj, trial), bridge=False)
-    return refit, without_points(traj, trial), trial
+    return refit, without_points(traj, trial)
