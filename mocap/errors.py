@@ -6,6 +6,7 @@ The CLIs turn any :class:`MocapInputError` into one line on stderr and exit code
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 
@@ -40,6 +41,19 @@ def require(ok: bool, owner: object, field: str, fix: str, *, value: object = _O
     if not ok:
         shown = getattr(owner, field) if value is _OWN_VALUE else value
         raise error(f"{type(owner).__name__}.{field}={shown!r}: {fix}")
+
+
+def require_one_of(owner: object, field: str, choices: tuple[str, ...] | Mapping[str, str], *,
+                   error: type[Exception] = ValueError) -> None:
+    """:func:`require` the attribute ``field`` to be one of ``choices``; the fix names them all
+    (``"use 'a', 'b' or 'c'"``), each followed by its note in brackets where ``choices`` maps
+    the choices to notes."""
+    if getattr(owner, field) in tuple(choices):
+        return
+    notes = choices if isinstance(choices, Mapping) else dict.fromkeys(choices, "")
+    named = [repr(c) + (f" ({note})" if note else "") for c, note in notes.items()]
+    listed = named[0] if len(named) == 1 else ", ".join(named[:-1]) + " or " + named[-1]
+    require(False, owner, field, f"use {listed}", error=error)
 
 
 def require_finite(owner: object, fields: tuple[str, ...], *, positive: bool = True,

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mocap.calibration import Calibration
-from mocap.errors import require
+from mocap.errors import require, require_one_of
 from mocap.smoothing import butterworth_filtfilt, fill_gaps, rts_smooth
 from mocap.triangulation import (
     camera_normalized,
@@ -118,13 +118,13 @@ class ReconstructionParams:
         require(self.refine_iterations >= 0, self, "refine_iterations", "must be >= 0")
         require(self.min_views >= 2, self, "min_views", "triangulation needs >= 2 views")
         require(0 <= self.coasting_weight <= 1, self, "coasting_weight", "must be in [0, 1]")
-        require(self.smoothing in ("none", "butterworth", "rts"), self, "smoothing", "use 'none', 'butterworth' or 'rts'")
+        require_one_of(self, "smoothing", ("none", "butterworth", "rts"))
         require(self.cutoff_hz > 0, self, "cutoff_hz", "must be > 0 Hz")
         require(self.butter_order >= 1, self, "butter_order", "must be >= 1")
         require(self.rts_accel_std > 0, self, "rts_accel_std", "must be > 0 m/s^2")
         require(self.rts_meas_std_m > 0, self, "rts_meas_std_m", "must be > 0 m")
         require(self.max_gap_frames >= 0, self, "max_gap_frames", "must be >= 0 frames")
-        require(self.gap_fill in ("auto", "cubic", "lsq"), self, "gap_fill", "use 'auto', 'cubic' or 'lsq'")
+        require_one_of(self, "gap_fill", ("auto", "cubic", "lsq"))
         require(self.gap_context_frames >= 1, self, "gap_context_frames", "must be >= 1 frame")
         require(self.relabel_gate_px is None or self.relabel_gate_px >= 0, self, "relabel_gate_px", "must be None or >= 0 pixels (0 disables)")
         require(self.relabel_sweeps >= 1, self, "relabel_sweeps", "must be >= 1")

@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 
 from mocap.calib.errors import BundleAdjustmentError
 from mocap.calib.geometry import matrix_to_rotvec, project_camera_points, rotvec_to_matrix, transform_points
-from mocap.errors import require
+from mocap.errors import require_one_of
 
 _WAND_PAIRS = np.array([[0, 1], [1, 2], [0, 2]])
 
@@ -63,8 +63,7 @@ class BundleAdjustmentOptions:
     wand_weight_px_per_mm: float = 1.0
 
     def __post_init__(self) -> None:
-        require(self.loss in ("linear", "soft_l1", "huber", "cauchy", "arctan"), self, "loss",
-                "must be one of linear, soft_l1, huber, cauchy, arctan")
+        require_one_of(self, "loss", ("linear", "soft_l1", "huber", "cauchy", "arctan"))
 
 
 @dataclass

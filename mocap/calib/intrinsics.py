@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from mocap.calib.errors import BoardNotFoundError, CalibrationError, DegenerateViewsError, ViewFailure
-from mocap.errors import require
+from mocap.errors import require, require_one_of
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ class IntrinsicsOptions:
     min_tilt_spread_deg: float = 5.0
 
     def __post_init__(self) -> None:
-        require(self.k3 in ("auto", "free", "fixed"), self, "k3", "must be 'auto', 'free' or 'fixed'")
+        require_one_of(self, "k3", ("auto", "free", "fixed"))
         require(self.min_views >= 3, self, "min_views", "must be >= 3 (Zhang's method)")
 
     @property

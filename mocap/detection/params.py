@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from mocap.errors import require
+from mocap.errors import require, require_one_of
 
 __all__ = ["DetectionParams"]
 
@@ -126,8 +126,8 @@ class DetectionParams:
             v = getattr(self, field)
             return 1.0 if v is None else v  # None is valid (the mode's default)
 
-        require(self.mode in ("ir", "visible"), self, "mode", "use 'ir' or 'visible'")
-        require(self.threshold in ("sigma", "otsu", "fixed"), self, "threshold", "use 'sigma', 'otsu' or 'fixed'")
+        require_one_of(self, "mode", ("ir", "visible"))
+        require_one_of(self, "threshold", ("sigma", "otsu", "fixed"))
         require(opt("k_sigma") > 0, self, "k_sigma", "must be > 0 (or None: the mode's default)")
         require(opt("min_contrast") >= 0, self, "min_contrast", "must be >= 0 grey levels (or None)")
         require(0 < self.fixed_threshold < 255, self, "fixed_threshold", "must be in (0, 255)")
@@ -138,7 +138,7 @@ class DetectionParams:
         require(0 <= opt("min_fill_ratio") <= 1, self, "min_fill_ratio", "must be in [0, 1]")
         require(opt("max_elongation") >= 1, self, "max_elongation", "must be >= 1")
         require(self.dilate_px >= 0, self, "dilate_px", "must be >= 0")
-        require(self.response in ("srgb", "linear"), self, "response", "use 'srgb' (webcams) or 'linear' (raw levels)")
+        require_one_of(self, "response", {"srgb": "webcams", "linear": "raw levels"})
         require(0 <= self.peak_fraction < 1, self, "peak_fraction", "must be in [0, 1)")
         require(self.small_peak_factor >= 0, self, "small_peak_factor", "must be >= 0 (0: no blob under min_area_px)")
         require(0 <= self.small_area_fraction <= 1, self, "small_area_fraction", "must be in [0, 1]")
