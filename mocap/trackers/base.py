@@ -63,6 +63,7 @@ stays ``COASTING`` with no detection (``associate`` stays one-to-one).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -118,9 +119,18 @@ def _as_positions(initial_xy: np.ndarray) -> np.ndarray:
 def check_positive(**values: float) -> None:
     """Refuse a tracker parameter that is not > 0 (NaN included): ``ValueError`` naming the
     first such keyword and its value."""
+    _check_each(values, lambda v: v > 0, "positive")
+
+
+def check_nonnegative(**values: float) -> None:
+    """Refuse a tracker parameter that is not >= 0 (NaN included), as :func:`check_positive`."""
+    _check_each(values, lambda v: v >= 0, ">= 0")
+
+
+def _check_each(values: dict[str, float], ok: Callable[[float], bool], what: str) -> None:
     for key, val in values.items():
-        if not val > 0:
-            raise ValueError(f"{key} must be positive, got {val!r}")
+        if not ok(val):
+            raise ValueError(f"{key} must be {what}, got {val!r}")
 
 
 class Tracker2D:

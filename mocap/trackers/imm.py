@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import LOST, Tracker2D, check_positive
+from mocap.trackers.base import LOST, Tracker2D, check_nonnegative, check_positive
 from mocap.trackers.registry import register_tracker
 
 MODELS = ("smooth", "agile", "manoeuvre")
@@ -135,9 +135,8 @@ class IMMTracker(Tracker2D):
         super().__init__(initial_xy, dt, rng, **base_params)
         check_positive(measurement_std_px=measurement_std_px, initial_position_std_px=initial_position_std_px,
                        initial_velocity_std=initial_velocity_std, merge_distance_px=merge_distance_px)
-        noise = (smooth_accel_std, agile_accel_std, agile_speed_gain, manoeuvre_velocity_std, manoeuvre_speed_gain)
-        if min(noise) < 0:
-            raise ValueError(f"process-noise standard deviations and gains must be >= 0, got {noise}")
+        check_nonnegative(smooth_accel_std=smooth_accel_std, agile_accel_std=agile_accel_std, agile_speed_gain=agile_speed_gain,
+                          manoeuvre_velocity_std=manoeuvre_velocity_std, manoeuvre_speed_gain=manoeuvre_speed_gain)
         stay = np.asarray(p_stay, dtype=np.float64)
         if stay.shape != (3,) or not ((stay > 0) & (stay < 1)).all():
             raise ValueError(f"p_stay must be three probabilities in (0, 1) (smooth, agile, manoeuvre), got {p_stay!r}")

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import Tracker2D, check_positive
+from mocap.trackers.base import Tracker2D, check_nonnegative, check_positive
 from mocap.trackers.registry import register_tracker
 
 
@@ -75,8 +75,7 @@ class KalmanTracker(Tracker2D):
         super().__init__(initial_xy, dt, rng, **base_params)
         check_positive(measurement_std_px=measurement_std_px, initial_position_std_px=initial_position_std_px,
                        initial_velocity_std=initial_velocity_std)
-        if accel_std < 0 or speed_accel_gain < 0:
-            raise ValueError(f"accel_std and speed_accel_gain must be >= 0, got {accel_std!r}, {speed_accel_gain!r}")
+        check_nonnegative(accel_std=accel_std, speed_accel_gain=speed_accel_gain)
         self.r = float(measurement_std_px) ** 2  # px**2, R = r I
         self.accel_std = float(accel_std)
         self.speed_accel_gain = float(speed_accel_gain)

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.trackers.base import AlphaBetaFilter, Tracker2D, check_positive
+from mocap.trackers.base import AlphaBetaFilter, Tracker2D, check_nonnegative, check_positive
 from mocap.trackers.condensation import _particle_count, _systematic_flat
 from mocap.trackers.registry import register_tracker
 
@@ -201,13 +201,9 @@ class OpenMoCapKalmanTracker(_OwnGateTracker):
         r = np.asarray(measurement_var_px2, dtype=np.float64)
         if r.shape != (2,) or not (r > 0).all():
             raise ValueError(f"measurement_var_px2 must be two positive variances (x, y) in px**2, got {measurement_var_px2!r}")
-        for key, val in (("velocity_noise", velocity_noise), ("velocity_noise_per_speed", velocity_noise_per_speed),
-                         ("initial_velocity_noise", initial_velocity_noise)):
-            if not val >= 0:
-                raise ValueError(f"{key} must be >= 0, got {val!r}")
-        if not (initial_velocity_var > 0 and radius_per_velocity_std > 0):
-            raise ValueError("initial_velocity_var and radius_per_velocity_std must be positive, got "
-                             f"{initial_velocity_var!r} and {radius_per_velocity_std!r}")
+        check_nonnegative(velocity_noise=velocity_noise, velocity_noise_per_speed=velocity_noise_per_speed,
+                          initial_velocity_noise=initial_velocity_noise)
+        check_positive(initial_velocity_var=initial_velocity_var, radius_per_velocity_std=radius_per_velocity_std)
         self.velocity_noise = float(velocity_noise)
         self.velocity_noise_per_speed = float(velocity_noise_per_speed)
         self.initial_velocity_noise = float(initial_velocity_noise)
