@@ -50,3 +50,45 @@ def test_after_a_change_of_light_nothing_matches_the_empty_scene():
     off = BackgroundModel(BackgroundParams(match_empty=0.0))
     off.learn_empty([_empty(rng)])
     assert not off.empty_match(crop_image(_empty(rng), view), crop_image(off.empty, view)).any()
+
+
+def _lamp_off(img: np.ndarray) -> np.ndarray:
+    """The same set under another light: dimmer to the right, bluer (a tungsten lamp on the left went off)."""
+    h, w = img.shape[:2]
+    ramp = np.linspace(0.75, 0.45, w, dtype=np.float32)[None, :, None]
+    tint = np.array([0.8, 0.95, 1.1], np.float32)
+    return np.clip(img.astype(np.float32) * ramp * tint, 0, 255).astype(np.uint8)
+
+
+def test_after_the_lamp_goes_off_the_empty_scene_is_relit_and_the_set_is_background_again():
+    rng = np.random.default_rng(5)
+    subject = np.zeros((240, 320), bool)
+    subject[60:200, 110:171] = True
+    box = (np.array([110.0, 60.0]), np.array([170.0, 130.0]))  # where the previous pose's shirt was
+    results = {}
+    for relight in (0.3, 0.0):
+        bg = BackgroundModel(BackgroundParams(relight_fraction=relight))
+        bg.learn_empty([_empty(rng) for _ in range(3)])
+        for _ in range(3):
+            bg.apply(_with_subject(rng), box)  # lamp on, subject in
+        frame = _lamp_off(_with_subject(rng))
+        mask = BackgroundModel.full_size(bg.apply(frame, box), frame.shape[1], frame.shape[0])
+        view = crop_view(150.0, 130.0, 160.0, 80)
+        same = bg.empty_match(crop_image(frame, view), crop_image(bg.empty, view))
+        results[relight] = (mask, same, bg.relit, view)
+    mask, same, relit, view = results[0.3]
+    assert relit
+    assert mask[subject].mean() > 0.95  # the subject stays foreground
+    set_far = ~subject
+    set_far[40:220, 90:191] = False  # away from the dilated mask's ring
+    assert mask[set_far].mean() < 0.02  # the wall and the box are background again
+    ribbon = crop_image(np.pad(np.ones((80, 8), np.uint8), ((100, 60), (195, 117))), view) > 0
+    assert same[ribbon].mean() > 0.9  # the box's yellow ribbon matches the re-lit empty scene
+    crop_subject = crop_image(subject.astype(np.uint8), view) > 0
+    inner = crop_subject & ~(crop_image((~subject).astype(np.uint8), view) > 0)
+    assert not same[inner].any()
+    # without re-lighting the whole set is foreground and nothing matches the empty scene
+    mask0, same0, relit0, _ = results[0.0]
+    assert not relit0
+    assert mask0[set_far].mean() > 0.5
+    assert not same0[ribbon].any()

@@ -519,7 +519,7 @@ class ShirtTracker:
 
         # 0. background subtraction
         t = clock()
-        masks = [bg.apply(img) if bg is not None else None for bg, img in zip(self.backgrounds, images)]
+        masks = [bg.apply(img, box) if bg is not None else None for bg, img, box in zip(self.backgrounds, images, self._prev_box)]
         T["background"] = (clock() - t) * 1e3
 
         # histogram search
