@@ -10,7 +10,7 @@ real webcam video (``mocap markers``) and on the bench's rendered frames
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -21,6 +21,7 @@ from mocap.capture_passes import CapturePasses, first_reconstruction
 from mocap.correspondence import CorrespondenceParams, UnlabelledPoints, reconstruct_unlabelled
 from mocap.detection import DetectionParams, detect_markers
 from mocap.errors import MocapInputError, require
+from mocap.free_blob_fill import fill_from_free_blobs
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
 from mocap.cluster_labelling import ClusterMarkerModel
 from mocap.model_check import error_limit_mm, model_markers, robust_skeleton_fit, without_points
@@ -50,7 +51,11 @@ class MarkerPipelineParams:
     check after the skeleton fit (:func:`mocap.model_check.robust_skeleton_fit`): points farther
     than ``model_outlier_mm`` from the fitted model are dropped one per frame and refit, for at
     most ``model_check_rounds`` rounds; a frame that needed more than ``model_check_max_drops``
-    drops loses every point the first fit missed.
+    drops loses every point the first fit missed; there the check takes points back one per
+    frame and round for ``model_check_grow_rounds`` rounds. Then, for up to
+    ``free_blob_fill_rounds`` rounds, markers still missing are measured from blobs no kept label
+    uses within ``free_blob_gate_px`` of the checked model's projection
+    (:func:`mocap.free_blob_fill.fill_from_free_blobs`).
 
     ``marker_radius_m``: the markers' radius (a 14 mm sphere: 0.007), 0 if unknown. With it,
     detections that measured their lit limb (the visible-light detector,
@@ -75,11 +80,17 @@ class MarkerPipelineParams:
     model_outlier_mm: float = 10.0
     model_check_rounds: int = 4
     model_check_max_drops: int = 2
+    model_check_grow_rounds: int = 6
+    free_blob_fill_rounds: int = 3
+    free_blob_gate_px: float = 3.0
     swap_repair: SwapRepairParams | None = field(default_factory=SwapRepairParams)
     marker_radius_m: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.marker_radius_m >= 0, self, "marker_radius_m", "must be >= 0 m (0: markers' size unknown)")
+        require(self.model_check_grow_rounds >= 0, self, "model_check_grow_rounds", "must be >= 0 (0: off)")
+        require(self.free_blob_fill_rounds >= 0, self, "free_blob_fill_rounds", "must be >= 0 (0: off)")
+        require(self.free_blob_gate_px > 0, self, "free_blob_gate_px", "must be > 0 pixels")
 
 
 @dataclass
@@ -298,15 +309,33 @@ def _model_guided_passes(passes: CapturePasses, solver, fit, params: MarkerPipel
     passes.run(jumps=False)
 
 
+def _measured_only(traj: Trajectories) -> Trajectories:
+    """``traj`` without its filled points (NaN there, nothing marked filled)."""
+    return Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
+                        traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
+
+
 def _check_against_model(passes: CapturePasses, solver, subject, params: MarkerPipelineParams):
     """Refit, remove the points the fitted skeleton cannot explain (mislabelled or ghosts:
     :func:`mocap.model_check.robust_skeleton_fit`), and fill gaps from the skeleton fitted to
     the measured points only: in fast motion a spline across a gap is centimetres off, the
     model driven by the segment's other markers is not. Returns the last fit."""
     fit, traj = robust_skeleton_fit(passes.traj, solver, params.model_outlier_mm, params.model_check_rounds,
-                                    params.model_check_max_drops)
-    measured_only = Trajectories(list(traj.labels), np.where(traj.filled[..., None], np.nan, traj.xyz),
-                                 traj.times, np.zeros_like(traj.filled), traj.residual_px, traj.n_views)
+                                    params.model_check_max_drops, params.model_check_grow_rounds)
+    limits = (0.5 * params.model_outlier_mm, params.model_outlier_mm)  # as error_limit_mm
+    added = 0
+    for _ in range(params.free_blob_fill_rounds):
+        # each round's fit, with the markers the last one added, predicts the limb's others better
+        traj, xy, n = fill_from_free_blobs(traj, passes.measured.xy, passes.detections, passes.calibration,
+                                           model_markers(solver, fit, traj.labels), limits,
+                                           params.free_blob_gate_px, params.reconstruction.max_residual_px)
+        passes.measured = replace(passes.measured, xy=xy)
+        added += n
+        if n == 0:
+            break
+        fit = solver.solve(_measured_only(traj), bridge=False)
+    passes.stats["free_blob_fill"] = added
+    measured_only = _measured_only(traj)
     fit = solver.solve(measured_only)
     body_of = {m.name: m.body for m in subject.markers}
     passes.traj = _fill_from_model(measured_only, model_markers(solver, fit, traj.labels),

@@ -20,6 +20,12 @@ bend the limb to the wrong points. A wrong point costs more than a gap.) What th
 dropped is then judged again by the fit without any point over the first fit's limit, which no
 wrong point over it has pulled: a point it explains comes back when, refitted with it, every kept
 point of its frame still fits (:func:`_readmit`; on that walk 27 points came back, none wrong).
+Where the fallback emptied a whole limb that fit cannot judge the limb's points (it holds the
+limb near its last solved pose), so the rest of them are taken back one per frame and round,
+the one the current fit misses least first, each only if, refitted with it, every kept point of
+its frame still fits and another point vouches for it (:func:`_grow`): the limb is rebuilt from
+the root outwards (on that walk frames 3-7 had the right arm's correct upper-arm and elbow points
+dropped with a wrong wrist and finger).
 """
 
 from __future__ import annotations
@@ -65,7 +71,7 @@ def error_limit_mm(traj: Trajectories, max_mm: float) -> np.ndarray:
 
 
 def robust_skeleton_fit(traj: Trajectories, solver, max_mm: float, rounds: int = 4,
-                        max_drops: int = 2) -> tuple[object, Trajectories]:
+                        max_drops: int = 2, grow_rounds: int = 6) -> tuple[object, Trajectories]:
     """Fit, then up to ``rounds`` times drop each frame's worst point over the limit and refit.
 
     Parameters
@@ -81,6 +87,8 @@ def robust_skeleton_fit(traj: Trajectories, solver, max_mm: float, rounds: int =
     max_drops : int
         In a frame where more points than this had to go, every point over the limit of the
         first fit is dropped too.
+    grow_rounds : int
+        Rounds of :func:`_grow` in those frames (each takes back at most one point a frame).
 
     Returns
     -------
@@ -110,7 +118,9 @@ def robust_skeleton_fit(traj: Trajectories, solver, max_mm: float, rounds: int =
     bad |= fallback
     if not untrusted.any():
         return fit, without_points(traj, bad)
-    return _readmit(traj, solver, solver.solve(without_points(traj, bad), bridge=False), bad, fallback, limit)
+    fit, kept = _readmit(traj, solver, solver.solve(without_points(traj, bad), bridge=False), bad, fallback, limit)
+    out = np.isfinite(traj.xyz[..., 0]) & ~np.isfinite(kept.xyz[..., 0])
+    return _grow(traj, solver, fit, out, fallback & out, limit, grow_rounds)
 
 
 def _readmit(traj: Trajectories, solver, fit, bad: np.ndarray, fallback: np.ndarray,
@@ -137,3 +147,38 @@ def _readmit(traj: Trajectories, solver, fit, bad: np.ndarray, fallback: np.ndar
         trial = bad & ~back
         refit = solver.solve(without_points(traj, trial), bridge=False)
     return refit, without_points(traj, trial)
+
+
+def _grow(traj: Trajectories, solver, fit, out: np.ndarray, candidates: np.ndarray, limit: np.ndarray,
+          rounds: int) -> tuple[object, Trajectories]:
+    """Take ``candidates`` (``(F, M)`` bool, among the points left ``out``) back one per frame and
+    round, the one ``fit`` misses least (relative to its limit) first; one stays back only if,
+    refitted with it, every kept point of its frame fits. Returns ``(fit, kept)``."""
+    out, candidates = out.copy(), candidates.copy()
+    rows = np.arange(len(out))
+    for _ in range(rounds):
+        if not candidates.any():
+            break
+        ratio = np.nan_to_num(model_error_mm(solver, fit, traj) / limit, nan=np.inf)
+        ratio[~candidates] = np.inf
+        pick = ratio.argmin(axis=1)
+        frames = np.flatnonzero(np.isfinite(ratio[rows, pick]))
+        if len(frames) == 0:
+            break
+        trial = out.copy()
+        trial[frames, pick[frames]] = False
+        refit = solver.solve(without_points(traj, trial), bridge=False)
+        after = np.nan_to_num(model_error_mm(solver, refit, traj), nan=np.inf) <= limit
+        fits = ~(~after & ~trial & np.isfinite(traj.xyz[..., 0])).any(axis=1)
+        # A point alone on a limb the fit leaves free always fits (one marker places its body), so
+        # one comes back only where others vouch for it: the fit without it explained it already,
+        # or with it the fit explains another candidate it did not explain before (RUPA placing
+        # the upper arm explains RELB; a wrong foot point explains none of the foot's others).
+        before = ratio <= 1.0
+        vouched = before[frames, pick[frames]] | (after & ~before & candidates & trial)[frames].any(axis=1)
+        back = frames[fits[frames] & vouched]
+        candidates[frames, pick[frames]] = False
+        if len(back):
+            out[back, pick[back]] = False
+            fit = solver.solve(without_points(traj, out), bridge=False)
+    return fit, without_points(traj, out)

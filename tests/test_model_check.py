@@ -129,3 +129,28 @@ def test_correct_points_the_fallback_dropped_are_taken_back(walk):
     rest = np.setdiff1d(np.arange(len(names)), leg)
     assert np.isfinite(kept.xyz[f, rest, 0]).all()                   # the pelvis points among them
     assert np.isfinite(kept.xyz[np.arange(len(t)) != f]).all()
+
+
+def test_a_limb_the_fallback_emptied_is_rebuilt_from_its_correct_points(walk):
+    """The frame of the test above: after the fallback the leg's correct thigh and knee points
+    are out with the three wrong foot points (the rounds dropped the tibia point), and the fit
+    without them cannot judge them (50 and 81 mm off). Taken back one at a time from the hip
+    down, the thigh vouched for by the knee, they come back exactly; no wrong point does.
+    Without the growth rounds they stay out."""
+    solver, names, sites, t = walk
+    traj = _trajectories(names, sites, t, np.random.default_rng(0))
+    f = 6
+    traj.n_views[f] = 2
+    wrong = [names.index(n) for n in ("LTOE", "LHEE", "LANK")]
+    traj.xyz[f, names.index("LTOE")] = sites[f, names.index("LHEE")]
+    traj.xyz[f, names.index("LHEE")] += np.array([0.09, -0.09, 0.06])
+    traj.xyz[f, names.index("LANK")] += np.array([-0.12, 0.0, 0.09])
+    correct_leg = [names.index(n) for n in ("LTHI", "LKNE")]
+
+    _, kept = robust_skeleton_fit(traj, solver, LIMIT_MM)
+    assert np.isnan(kept.xyz[f, wrong, 0]).all()
+    assert np.isfinite(kept.xyz[f, correct_leg, 0]).all()
+    np.testing.assert_allclose(kept.xyz[f, correct_leg], traj.xyz[f, correct_leg])
+
+    _, without = robust_skeleton_fit(traj, solver, LIMIT_MM, grow_rounds=0)
+    assert np.isnan(without.xyz[f, correct_leg, 0]).any()
