@@ -3,7 +3,8 @@ skeleton (:func:`mocap.model_labelling.label_points`), learned from a labelled t
 
 from __future__ import annotations
 
-from itertools import combinations
+import warnings
+from itertools import combinations, permutations
 from typing import Sequence
 
 import numpy as np
@@ -38,6 +39,17 @@ def _prediction_rms(xyz: np.ndarray, ok: np.ndarray, m: int, nb: np.ndarray) -> 
     return float(np.sqrt(np.mean(err**2))), f0
 
 
+#: A rigid group may take a point from a label outside it only if that turns it less than this
+#: since the previous frame (c3d_racing_propulsion's glove triads turn at most 46 deg a frame).
+MAX_TURN_RAD = np.radians(60.0)
+
+
+def _turn(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (rad) of the rotation that takes points ``a`` onto ``b`` (least squares)."""
+    R, _ = kabsch(a, b)
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
 class ClusterMarkerModel:
     """Markers predicted from their most rigid neighbours, learned from a labelled trial.
 
@@ -70,7 +82,7 @@ class ClusterMarkerModel:
     """
 
     def __init__(self, labels: Sequence[str], xyz: np.ndarray, n_neighbours: int = 4, min_gate_m: float = 0.01,
-                 n_spare: int = 0, max_reach_m: float | None = 0.5) -> None:
+                 n_spare: int = 0, max_reach_m: float | None = 0.5, rigid_std_m: float = 0.0015) -> None:
         xyz = np.asarray(xyz, dtype=np.float64)
         F, M, _ = xyz.shape
         if M != len(labels):
@@ -112,6 +124,41 @@ class ClusterMarkerModel:
             self.ref_self[m], self.ref_nb[m] = xyz[f0, m], xyz[f0, nb]
             self.gate_m[m] = min_gate_m + 3.0 * rms
         self.neighbour_std_m = np.take_along_axis(std, self.neighbours, axis=1)
+        # Rigid groups: a marker and those of its neighbours whose distances to it and to each other
+        # vary less than ``rigid_std_m`` over the trial (a plate or a triad of markers), three at least.
+        self.mean_dist_m = mean
+        groups = set()
+        for m in range(M):
+            g = [m] + [int(j) for j in self.neighbours[m] if std[m, j] < rigid_std_m]
+            g = [a for a in g if all(std[a, b] < rigid_std_m for b in g if b != a)]
+            if len(g) >= 3:
+                groups.add(tuple(sorted(g)))
+        self.rigid_groups = [np.array(g) for g in sorted(groups)]
+        self.shape_tol_m = 0.005
+        self.group_local, self.group_reach = [], []
+        for g in self.rigid_groups:
+            frames = np.flatnonzero(ok[:, g].all(axis=1))
+            self.group_local.append(xyz[frames[frames.size // 2], g])
+            self.group_reach.append(float(mean[np.ix_(g, g)].max()) + 0.01)
+        # Each group's surroundings: the other markers' places in the group's own frame over the
+        # trial (mean and RMS spread), those within 0.3 m whose place varies least (at most 60 mm).
+        self.group_context = []
+        for g, local in zip(self.rigid_groups, self.group_local):
+            frames = np.flatnonzero(ok[:, g].all(axis=1))
+            frames = frames[:: max(1, frames.size // 100)]
+            loc = np.full((len(frames), M, 3), np.nan)
+            for k, f in enumerate(frames):
+                R, t = kabsch(local, xyz[f, g])
+                loc[k] = (xyz[f] - t) @ R
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mu = np.nanmean(loc, axis=0)
+                spread = np.sqrt(np.nanmean(((loc - mu) ** 2).sum(axis=2), axis=0))
+            near = np.linalg.norm(mu - local.mean(axis=0), axis=1) < 0.3
+            cand = [j for j in np.argsort(np.nan_to_num(spread, nan=np.inf))
+                    if j not in g and near[j] and spread[j] < 0.06 and np.isfinite(spread[j])][:4]
+            cand = np.array(cand, dtype=int)
+            self.group_context.append((cand, mu[cand], np.maximum(spread[cand], 0.005)))
 
     def markers(self, state: np.ndarray) -> np.ndarray:
         return state
@@ -160,6 +207,124 @@ class ClusterMarkerModel:
                 idx[[a, b]] = idx[[b, a]]
         return idx
 
+    def keep_rigid_orientation(self, idx: np.ndarray, points: np.ndarray, last: np.ndarray) -> np.ndarray:
+        """Within each rigid group, give its points to the labels that turn the group least since
+        the previous frame (``last``: the previous frame's markers, labelled or predicted, NaN where
+        neither), then to those that fit its surroundings (:meth:`_fit_surroundings`).
+
+        Why: a group whose shape is (nearly) symmetric, such as the equilateral 43 mm triads of
+        c3d_racing_propulsion, fits its own shape as well with its labels permuted, and so do the
+        neighbour predictions made from it; only its motion tells the permutations apart. At 70 Hz
+        a glove triad moves up to 92 mm and turns up to 46 deg between frames, so each marker's
+        constant-velocity prediction can lie nearer another marker of the triad (its errors reach
+        65 mm, the markers are 43 mm apart), while a permuted triad turns at least 86 deg from the
+        previous frame. The placements of the group among the points near its labelled ones that
+        keep its shape (within ``shape_tol_m``) are tried; the one with the most points, then the
+        least turn, is kept where it turns the group by less than half the turn of the labels it
+        has (any turn where those were fewer than three), or takes more points turning less than
+        :data:`MAX_TURN_RAD` (a label outside the group that held one of them loses it). Two points
+        alone go to the two labels whose segment turns least. Groups with fewer than three markers
+        known in the previous frame are left as they are."""
+        idx = idx.copy()
+        for g, local, reach in zip(self.rigid_groups, self.group_local, self.group_reach):
+            have = g[idx[g] >= 0]
+            if len(have) < 2 or np.isfinite(last[g]).all(axis=1).sum() < 3:
+                continue
+            near = np.flatnonzero(np.linalg.norm(points - points[idx[have]].mean(axis=0), axis=1) < reach)
+            current = _turn(last[have], points[idx[have]]) if len(have) >= 3 and np.isfinite(last[have]).all() else np.inf
+            best = None
+            for _, _, mi, _ in match_rigid_cluster(local, points[near], self.shape_tol_m, max_matches=12):
+                use = mi >= 0
+                labels, pts = g[use], near[mi[use]]
+                seen = np.isfinite(last[labels]).all(axis=1)
+                if seen.sum() < 3:
+                    continue
+                key = (-int(use.sum()), _turn(last[labels[seen]], points[pts[seen]]))
+                if best is None or key < best[0]:
+                    best = (key, labels, pts)
+            if best is None and len(have) == 2 and np.isfinite(last[g]).all():
+                # Two points: the labels whose segment turns least (a transposed pair turns the
+                # segment by 180 deg less the true turn).
+                pts2 = idx[have]
+                v = points[pts2[1]] - points[pts2[0]]
+                for a, b in permutations(g, 2):
+                    if abs(self.mean_dist_m[a, b] - np.linalg.norm(v)) > self.shape_tol_m:
+                        continue
+                    w = last[b] - last[a]
+                    angle = float(np.arccos(np.clip(v @ w / (np.linalg.norm(v) * np.linalg.norm(w)), -1.0, 1.0)))
+                    if (a, b) == tuple(have):
+                        current = angle
+                    if best is None or angle < best[0][1]:
+                        best = ((-2, angle), np.array([a, b]), pts2)
+            if best is None:
+                continue
+            (n_neg, turn), labels, pts = best
+            if sorted(zip(labels.tolist(), pts.tolist())) == sorted(zip(have.tolist(), idx[have].tolist())):
+                continue
+            if turn < 0.5 * current or (-n_neg > len(have) and turn < MAX_TURN_RAD):
+                idx[np.isin(idx, pts)] = -1  # a label outside the group that held one of its points loses it
+                idx[g] = -1
+                idx[labels] = pts
+        for gi in range(len(self.rigid_groups)):
+            idx = self._fit_surroundings(gi, idx, points)
+        return idx
+
+    def _fit_surroundings(self, gi: int, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Give a rigid group's points to the labels that put its labelled surroundings where the
+        trial had them in the group's frame, where that fits clearly better than the labels it has.
+
+        Motion keeps a group's labels only if they were right before; this is what sets them right
+        again. A glove triad permuted by 120 deg moves its hand marker (c3d_racing_propulsion's NAR,
+        82 mm from the triad's centre, 8 mm RMS spread in its frame) by about 140 mm there. Applied
+        only when the present labels put the surroundings more than three spreads away on average
+        and another labelling fits four times better."""
+        g, local = self.rigid_groups[gi], self.group_local[gi]
+        ctx, mu, spread = self.group_context[gi]
+        have = g[idx[g] >= 0]
+        seen = ctx[idx[ctx] >= 0] if len(ctx) else ctx
+        if len(have) < 3 or len(seen) == 0:
+            return idx
+        k = np.searchsorted(ctx, seen) if np.all(np.diff(ctx) > 0) else np.array([list(ctx).index(j) for j in seen])
+        pts = idx[have]
+        d_now = np.linalg.norm(points[pts][:, None] - points[pts][None], axis=2)
+        current, best = None, None
+        for labels in permutations(g, len(have)):
+            labels = np.array(labels)
+            if np.abs(self.mean_dist_m[np.ix_(labels, labels)] - d_now).max() > self.shape_tol_m:
+                continue
+            R, t = kabsch(local[np.searchsorted(g, labels)], points[pts])
+            loc = (points[idx[seen]] - t) @ R
+            score = float(np.mean((np.linalg.norm(loc - mu[k], axis=1) / spread[k]) ** 2))
+            if np.array_equal(labels, have):
+                current = score
+            if best is None or score < best[0]:
+                best = (score, labels)
+        if current is None or best is None or np.array_equal(best[1], have):
+            return idx
+        if current > 9.0 and best[0] < current / 4.0:
+            idx = idx.copy()
+            idx[g] = -1
+            idx[best[1]] = pts
+        return idx
+
+    def rigidly_placed(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Labels ``(M,)`` bool whose point keeps its rigid group's shape with at least two other
+        labelled members (every distance among them within ``shape_tol_m`` of the trial's).
+
+        The veto spares them: such a marker's neighbours beyond its group sit across a joint
+        (a glove triad's fourth neighbour is on the forearm), and their prediction can be off by
+        more than the marker's gate while the triad itself holds its shape to a millimetre."""
+        out = np.zeros(len(idx), bool)
+        for g in self.rigid_groups:
+            have = g[idx[g] >= 0]
+            if len(have) < 3:
+                continue
+            p = points[idx[have]]
+            d = np.abs(np.linalg.norm(p[:, None] - p[None], axis=2) - self.mean_dist_m[np.ix_(have, have)])
+            ok = (d <= self.shape_tol_m).sum(axis=1) >= 3  # itself and two others
+            out[have[ok]] = True
+        return out
+
     def _close_labelled_pairs(self, idx: np.ndarray, points: np.ndarray) -> list[tuple[int, int]]:
         """Neighbour pairs ``(a, b)``, each once, both labelled, whose points are closer than
         both their gates (either label could have taken the other's point)."""
@@ -196,19 +361,23 @@ class ClusterMarkerModel:
             idx = np.where(more >= 0, more, idx)
         return idx
 
-    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
-        M = len(self.labels)
-        idx = np.full(M, -1, dtype=np.intp)
+    def _seed(self, idx: np.ndarray, points: np.ndarray, which: np.ndarray, allowed: np.ndarray | None = None) -> np.ndarray:
+        """Label more of the ``allowed`` points (default all) by matching groups (a marker of ``which``
+        and its neighbours) among the points not yet labelled, most rigid first, each seed then grown
+        through the predictions."""
+        allowed = np.ones(len(points), bool) if allowed is None else allowed
+        idx = idx.copy()
+        which = set(int(m) for m in which)
         # Seeds: groups (a marker and its neighbours), most rigid first, each matched among the
         # points not yet labelled; every seed then grows through the neighbours' predictions.
         rigidity = np.nanmax(np.where(np.isfinite(self.neighbour_std_m), self.neighbour_std_m, np.inf), axis=1)
         for m in np.argsort(rigidity):
             if not np.isfinite(rigidity[m]):
                 break
-            if idx[m] >= 0:
+            if idx[m] >= 0 or m not in which:
                 continue
             group = np.concatenate([[m], self.neighbours[m]])
-            free = np.ones(len(points), bool)
+            free = allowed.copy()
             free[idx[idx >= 0]] = False
             # Members of the group labelled by an earlier seed anchor the match on their own points:
             # a cluster whose other neighbours an earlier seed took (the head of c3d_sample_static,
@@ -231,7 +400,12 @@ class ClusterMarkerModel:
             for j, g in enumerate(group):
                 if mi[j] >= 0 and idx[g] < 0 and free[mi[j]]:
                     idx[g] = mi[j]
-            idx = self._grow(idx, points, np.ones(len(points), bool), rounds=8)
+            idx = self._grow(idx, points, allowed, rounds=8)
+        return idx
+
+    def initialise(self, points: np.ndarray, trusted: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, float]:
+        M = len(self.labels)
+        idx = self._seed(np.full(M, -1, dtype=np.intp), points, np.arange(M))
         n = int((idx >= 0).sum())
         if n < 3:
             return None, idx, 0.0
@@ -241,6 +415,7 @@ class ClusterMarkerModel:
 
     def track(self, points: np.ndarray, trusted: np.ndarray, state: np.ndarray, previous: Sequence[np.ndarray],
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
+        last = state  # the previous frame's markers (labelled, else predicted)
         pred = constant_velocity(state, previous)
         idx = assign_to_predictions(pred, points, gates[0], allowed=trusted)
         # Ambiguous two-view points: only within the tight gate of the motion prediction.
@@ -250,17 +425,19 @@ class ClusterMarkerModel:
         idx = np.where(more >= 0, more, idx)
         # Before the veto: a crossed pair would make their neighbours' predictions veto right labels.
         idx = self.exchange_neighbours(idx, points)
+        idx = self.keep_rigid_orientation(idx, points, last)
         # Veto: a label whose point disagrees with its neighbours' prediction loses it.
         pos = point_positions(points, idx)
         model = self.predict(pos)
         bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > self.gate_m)
-        idx[bad] = -1
+        idx[bad & ~self.rigidly_placed(idx, points)] = -1
         # Growth takes trusted points within the marker's gate, and ambiguous two-view points
         # only within the tight gate (the MarkerModel rule): a knee marker's two-view point 32 mm
         # from the shank marker lost to a merged point was inside the shank marker's 49 mm gate,
         # and the labels of the two crossed for the rest of c3d_codamotion_walk.
         idx = self._grow(idx, points, trusted)
         idx = self._grow(idx, points, np.ones(len(points), bool), gate_m=np.minimum(self.gate_m, gates[1]))
+        idx = self.keep_rigid_orientation(idx, points, last)
         pos = point_positions(points, idx)
         model = self.predict(pos)
         seen = idx >= 0
