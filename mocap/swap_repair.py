@@ -103,3 +103,55 @@ def repair_swaps(xyz: np.ndarray, params: SwapRepairParams | None = None) -> tup
         prev[fin] = last[fin]
         last[fin] = cur[fin]
     return x, events
+
+
+def repair_source_swaps(xyz: np.ndarray, max_jump_m: float = 0.02, match_m: float = 0.01
+                        ) -> tuple[np.ndarray, list[tuple[int, int, int, int, float]]]:
+    """Exchange a labelled capture's own label swaps: return ``(F, M, 3)`` positions and the
+    exchanges ``(label_a, label_b, first, last, jump_m)`` (samples ``first..last`` inclusive).
+
+    A file's labelling can hand a physical marker from one label to another where one of them
+    has a gap: label ``a`` jumps off its own path (more than ``max_jump_m`` from its
+    constant-velocity prediction) onto the place where label ``b``'s path, ending just before
+    (a *handover*) or starting just there (a *takeover*), continues within ``match_m``. Then
+    ``b``'s run before the handover (or from the takeover on) is the marker ``a`` carries
+    elsewhere: the two labels are exchanged over that run, so each follows one physical marker.
+    This is the "swap repair" a user makes before taking a capture as truth.
+    """
+    x = np.array(xyz, dtype=np.float64, copy=True)
+    F, M, _ = x.shape
+    fin = np.isfinite(x).all(axis=2)
+    events: list[tuple[int, int, int, int, float]] = []
+
+    def predict(m: int, f: int) -> np.ndarray:
+        return 2.0 * x[f - 1, m] - x[f - 2, m] if f >= 2 and fin[f - 2, m] else x[f - 1, m]
+
+    for f in range(1, F):
+        for a in range(M):
+            if not (fin[f, a] and fin[f - 1, a]):
+                continue
+            pa = predict(a, f)
+            jump = float(np.linalg.norm(x[f, a] - pa))
+            if jump <= max_jump_m:
+                continue
+            for b in range(M):
+                if b == a:
+                    continue
+                if fin[f - 1, b] and not fin[f, b] and np.linalg.norm(x[f, a] - predict(b, f)) < match_m:
+                    lo = f - 1
+                    while lo > 0 and fin[lo - 1, b]:
+                        lo -= 1
+                    first, last = lo, f - 1                      # handover: b's run before f
+                elif fin[f, b] and not fin[f - 1, b] and np.linalg.norm(x[f, b] - pa) < match_m:
+                    hi = f
+                    while hi + 1 < F and fin[hi + 1, b]:
+                        hi += 1
+                    first, last = f, hi                          # takeover: b's run from f
+                else:
+                    continue
+                seg = slice(first, last + 1)
+                x[seg, [a, b]] = x[seg, [b, a]]
+                fin[seg, [a, b]] = fin[seg, [b, a]]
+                events.append((a, b, first, last, jump))
+                break
+    return x, events

@@ -309,3 +309,50 @@ def test_run_scores_a_capture_without_a_humanoid(tmp_path):
     assert metrics["markers.reconstructed_fraction"] > 0.9
     assert metrics["markers.p95_error_mm"] < 5.0
     assert result.capture is not None and result.capture.skeleton is None
+
+
+def test_source_label_swaps_are_exchanged_back_and_reported():
+    """Swap repair of a capture's own labels: a label that jumps onto the path another label's
+    run continues (a handover where that run ends, a takeover where it starts) is exchanged with
+    it over that run. Synthetic: two markers 60 mm apart moving 5 mm a sample; the file calls
+    marker P "b" in samples 0-9 and "a" from 10 on, and marker Q "a" in samples 0-9 and nothing
+    after; then "b" takes P again in samples 30-39."""
+    from mocap.swap_repair import repair_source_swaps
+
+    t = np.arange(40)[:, None] * np.array([0.005, 0.0, 0.0])
+    P, Q = t + [0.0, 0.0, 1.0], t + [0.0, 0.06, 1.0]
+    a, b = P.copy(), np.full_like(P, np.nan)
+    a[:10], b[:10] = Q[:10], P[:10]      # handover at sample 10
+    b[30:], a[30:] = P[30:], Q[30:]      # takeover at sample 30
+    fixed, events = repair_source_swaps(np.stack([a, b], axis=1))
+    assert [(e[0], e[1], e[2], e[3]) for e in events] == [(0, 1, 0, 9), (0, 1, 30, 39)]
+    assert events[0][4] == pytest.approx(0.06)           # the jump: Q to P
+    np.testing.assert_allclose(fixed[:, 0], P)            # "a" follows P throughout
+    np.testing.assert_allclose(fixed[:10, 1], Q[:10])     # "b" carries Q where the file had it
+    np.testing.assert_allclose(fixed[30:, 1], Q[30:])
+    assert np.isnan(fixed[10:30, 1]).all()
+    # Continuous paths are left alone, gaps or not.
+    b2 = Q.copy()
+    b2[12:20] = np.nan
+    assert repair_source_swaps(np.stack([P, b2], axis=1))[1] == []
+
+
+@pytest.mark.skipif(not (DATA / "c3d" / "kinematics_basket_sprint.c3d").is_file(), reason="shared real data not found")
+def test_basket_sprint_truth_has_its_forearm_swap_repaired():
+    """c3d_basket_sprint: in the file, ForearmL:Marker4 is at the place ForearmL:Marker1 holds in
+    frames 24-175 of the window in frames 0-23 and 176 only, while "Marker1" is there a point 73
+    mm away. The truth exchanges the two over those frames (one line says so); Marker1 then has no
+    jump in the window, and nothing else in the twelve captures is exchanged."""
+    scenarios = Path(__file__).resolve().parents[1] / "scenarios"
+    clip = load_capture_clip(load_scenario(scenarios / "c3d_basket_sprint.toml"))
+    assert clip.label_repairs.count("ForearmL:Marker1 <-> ForearmL:Marker4") == 2, clip.label_repairs
+    assert "\n" not in clip.label_repairs and "73 mm" in clip.label_repairs
+    sc = load_scenario(scenarios / "c3d_basket_sprint.toml")
+    times = mid_exposure_times(sc.n_frames, sc.fps, sc.sensor.exposure_ms)
+    xyz = clip.file_positions_at(times)
+    m1, m4 = clip.labels.index("ForearmL:Marker1"), clip.labels.index("ForearmL:Marker4")
+    step = np.linalg.norm(np.diff(xyz[:, m1], axis=0), axis=1)
+    assert np.isfinite(xyz[:, m1]).all() and step.max() < 0.03   # 73 mm at frames 23-24 and 175-176 before
+    assert np.flatnonzero(np.isfinite(xyz[:, m4]).all(axis=1)).tolist() == list(range(24)) + [176]
+    for name in ("c3d_qualisys_gaps", "c3d_codamotion_walk", "c3d_racing_propulsion", "trc_sprint_start"):
+        assert load_capture_clip(load_scenario(scenarios / f"{name}.toml")).label_repairs == ""

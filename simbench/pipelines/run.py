@@ -232,6 +232,9 @@ class _Run:
         if self.capture is not None:
             with self.stages.run("scoring"):
                 self.metrics.update(score_markers(self._gt_at_reference_instants(), self.capture))
+        clip = getattr(self.stage, "clip", None)
+        if clip is not None and clip.label_repairs:  # a real capture's truth, as it was scored
+            self.report_sections += ["## Capture truth", "", clip.label_repairs + ".", ""]
         if self.capture is not None and self.gt.readout_s > 0:
             with self.stages.run("rolling-shutter comparison"):
                 self._rolling_shutter_comparison(params)

@@ -67,6 +67,9 @@ class CaptureClip:
         Physical markers with no sample in the window (not rendered).
     source_up_axis, up_axis_reason : str
         The file's up axis and how it was decided.
+    label_repairs : str
+        The file's own label swaps exchanged back in the window, on one line ("" if none;
+        :func:`simbench.stage.capture.repair_window_swaps`).
     """
 
     labels: tuple[str, ...]
@@ -82,6 +85,7 @@ class CaptureClip:
     dropped: tuple[str, ...] = ()
     source_up_axis: str = "z"
     up_axis_reason: str = ""
+    label_repairs: str = ""
 
     @property
     def n_markers(self) -> int:

@@ -27,6 +27,7 @@ import numpy as np
 
 from mocap.errors import MocapInputError
 from mocap.exports import CaptureTrajectories, read_c3d, read_trc
+from mocap.swap_repair import repair_source_swaps
 from simbench.errors import ScenarioError
 from simbench.render.camera import cameras_from_scenario
 from simbench.render.frames import FrameRenderer
@@ -143,6 +144,8 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
     shift = look_at_point(scenario)[:2] - 0.5 * (lo + hi)
     xyz = xyz.copy()
     xyz[..., :2] += shift
+    # The file's own label swaps inside the window, exchanged back (see repair_window_swaps).
+    xyz, repairs = repair_window_swaps(xyz, names, rate, m.start_s, end_s)
     if m.gaps is not None:
         rng = np.random.default_rng(np.random.SeedSequence([scenario.seed, 0x6A95]))
         gap_mask = seeded_gaps(m.gaps, F, len(names), rng)
@@ -150,7 +153,28 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
         gap_mask = np.zeros((F, len(names)), dtype=bool)
     return CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, gap_mask, shift, Path(given),
                        set_aside=dict(traj.set_aside), dropped=dropped, source_up_axis=traj.source_up_axis,
-                       up_axis_reason=traj.up_axis_reason)
+                       up_axis_reason=traj.up_axis_reason, label_repairs=repairs)
+
+
+def repair_window_swaps(xyz: np.ndarray, names: list[str], rate_hz: float, start_s: float, end_s: float
+                        ) -> tuple[np.ndarray, str]:
+    """The file samples ``xyz (N, M, 3)`` with the capture's own label swaps inside the window
+    ``start_s..end_s`` exchanged back (:func:`mocap.swap_repair.repair_source_swaps`: a label
+    that jumps onto the path another label's run continues), and one line saying what was
+    exchanged ("" if nothing). A user repairs such swaps before taking a capture as truth; the
+    labeller follows physical markers, and unrepaired it is scored as swapping where the file's
+    labelling does (c3d_basket_sprint: ForearmL:Marker4 carries ForearmL:Marker1's marker in the
+    window's first 24 frames and its last, 73 mm from the point Marker1 carries there)."""
+    i0 = max(int(np.floor(start_s * rate_hz)), 0)
+    i1 = min(int(np.ceil(end_s * rate_hz)) + 1, len(xyz) - 1)
+    fixed, events = repair_source_swaps(xyz[i0:i1 + 1])
+    if not events:
+        return xyz, ""
+    out = xyz.copy()
+    out[i0:i1 + 1] = fixed
+    parts = [f"{names[a]} <-> {names[b]} at {(i0 + first) / rate_hz:.3f}-{(i0 + last) / rate_hz:.3f} s "
+             f"({names[a]} jumped {1e3 * jump:.0f} mm onto {names[b]}'s path)" for a, b, first, last, jump in events]
+    return out, "label swaps of the file repaired in the truth: " + "; ".join(parts)
 
 
 class _AbsentMarkersGeometry(MovingGeometry):
