@@ -342,7 +342,7 @@ def test_far_markers_are_neighbours_only_when_too_few_are_near() -> None:
         assert err[0] < 0.5 * model.gate_m[rad] and err[1] < model.gate_m[uln], (f, err)
     assert _wrong_labels(frames, truth, model) == []
     # The least varying distances alone, however far, give the old neighbours and the swap, without
-    # rigid groups (rigid_std_m=0; with the rigid groups of eeafa35 these points no longer give it
+    # rigid groups (rigid_std_m=0; with the rigid groups (368aa80) these points no longer give it
     # even with the old neighbours: the right elbow triad is one, the wrist markers are in none).
     old = ClusterMarkerModel(L, ref.xyz, max_reach_m=None, rigid_std_m=0.0)
     assert "L.AA" in [L[k] for k in old.neighbours[rad]]
