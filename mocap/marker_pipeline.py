@@ -24,7 +24,7 @@ from mocap.errors import MocapInputError, require
 from mocap.free_blob_fill import fill_from_free_blobs
 from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement, initial_labels
 from mocap.cluster_labelling import ClusterMarkerModel
-from mocap.model_check import error_limit_mm, model_markers, robust_skeleton_fit, without_points
+from mocap.model_check import error_limit_mm, model_markers, robust_skeleton_fit, view_limits_mm, without_points
 from mocap.model_labelling import ModelLabellingParams, PointLabels, label_points
 from mocap.skeleton_labelling import SkeletonMarkerModel
 from mocap.reassociation import ReassociationParams
@@ -322,7 +322,7 @@ def _check_against_model(passes: CapturePasses, solver, subject, params: MarkerP
     model driven by the segment's other markers is not. Returns the last fit."""
     fit, traj = robust_skeleton_fit(passes.traj, solver, params.model_outlier_mm, params.model_check_rounds,
                                     params.model_check_max_drops, params.model_check_grow_rounds)
-    limits = (0.5 * params.model_outlier_mm, params.model_outlier_mm)  # as error_limit_mm
+    limits = view_limits_mm(params.model_outlier_mm)
     added = 0
     for r in range(params.free_blob_fill_rounds):
         if r:

@@ -63,11 +63,17 @@ def without_points(traj: Trajectories, drop: np.ndarray) -> Trajectories:
                         traj.residual_px, np.where(drop, 0, traj.n_views))
 
 
-def error_limit_mm(traj: Trajectories, max_mm: float) -> np.ndarray:
-    """``(F, M)`` mm: the model check's limit per point. A point from two views cannot check
-    itself (any two rays meet within the epipolar gate): a partly hidden blob biases it by
+def view_limits_mm(max_mm: float) -> tuple[float, float]:
+    """The model check's limit ``(two views, more views)`` in mm. A point from two views cannot
+    check itself (any two rays meet within the epipolar gate): a partly hidden blob biases it by
     several millimetres unseen, so the model is held to half the tolerance there."""
-    return np.where(np.asarray(traj.n_views) == 2, 0.5 * max_mm, max_mm)
+    return 0.5 * max_mm, max_mm
+
+
+def error_limit_mm(traj: Trajectories, max_mm: float) -> np.ndarray:
+    """``(F, M)`` mm: the model check's limit per point (:func:`view_limits_mm`)."""
+    two, more = view_limits_mm(max_mm)
+    return np.where(np.asarray(traj.n_views) == 2, two, more)
 
 
 def robust_skeleton_fit(traj: Trajectories, solver, max_mm: float, rounds: int = 4,
@@ -153,7 +159,8 @@ def _grow(traj: Trajectories, solver, fit, out: np.ndarray, candidates: np.ndarr
           rounds: int) -> tuple[object, Trajectories]:
     """Take ``candidates`` (``(F, M)`` bool, among the points left ``out``) back one per frame and
     round, the one ``fit`` misses least (relative to its limit) first; one stays back only if,
-    refitted with it, every kept point of its frame fits. Returns ``(fit, kept)``."""
+    refitted with it, every kept point of its frame fits and another point vouches for it (see
+    below). Returns ``(fit, kept)``."""
     out, candidates = out.copy(), candidates.copy()
     rows = np.arange(len(out))
     for _ in range(rounds):
