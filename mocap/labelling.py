@@ -30,11 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
-import cv2
 import numpy as np
 from scipy.optimize import least_squares, linear_sum_assignment
 
 from mocap.calibration import Calibration
+from mocap.distance_transform import exact_distance_transform
 from mocap.errors import require
 from mocap.label_template import LabelTemplate, load_template, save_template
 from mocap.triangulation import triangulate
@@ -227,7 +227,7 @@ def _gates(calibration: Calibration, centre: np.ndarray, params: LabelInitParams
 
 def _cost_maps(und: list[np.ndarray], calibration: Calibration, gates: np.ndarray) -> list[np.ndarray]:
     """Per camera, an image of the capped squared distance to the nearest detection,
-    ``min(d / gate, 1)^2`` (``cv2.distanceTransform``): scoring a hypothesis is then one
+    ``min(d / gate, 1)^2`` (:func:`exact_distance_transform`): scoring a hypothesis is then one
     lookup per projected marker instead of a nearest-neighbour query (~10x faster for
     the ~10^6 lookups of the coarse search; +-0.5 px is plenty at that stage)."""
     maps = []
@@ -238,7 +238,7 @@ def _cost_maps(und: list[np.ndarray], calibration: Calibration, gates: np.ndarra
             q = np.round(pts).astype(int)
             ok = (q[:, 0] >= 0) & (q[:, 0] < w) & (q[:, 1] >= 0) & (q[:, 1] < h)
             img[q[ok, 1], q[ok, 0]] = 0
-        dist = cv2.distanceTransform(img, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        dist = exact_distance_transform(img)
         maps.append((np.minimum(dist / gate, 1.0) ** 2).astype(np.float32))
     return maps
 

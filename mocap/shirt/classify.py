@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mocap.distance_transform import exact_distance_transform
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel
 from mocap.shirt.shirt_model import CropView
 
@@ -242,7 +243,7 @@ def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, 
     # distances per map cell, then one gather for all query pixels
     D = np.full((n_patches, r * r), np.inf, np.float32)
     for i, p in enumerate(present):
-        D[p] = cv2.distanceTransform(other[i], cv2.DIST_L2, cv2.DIST_MASK_PRECISE).ravel()
+        D[p] = exact_distance_transform(other[i]).ravel()
     D[present] *= np.float32(f)
     return D[:, cell]
 

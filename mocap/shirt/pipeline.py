@@ -73,6 +73,7 @@ import cv2
 import numpy as np
 
 from mocap.calibration import Calibration
+from mocap.distance_transform import exact_distance_transform
 from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
 from mocap.shirt.background import BackgroundModel
@@ -157,7 +158,7 @@ def _touches_border(colour: np.ndarray, band: int = 2, min_pixels: int = 4) -> b
 
 def _silhouette(colour: np.ndarray, view: CropView) -> Silhouette:
     """Distance (image pixels) from every working pixel of a crop to the nearest classified shirt pixel."""
-    dt = cv2.distanceTransform((colour < 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    dt = exact_distance_transform((colour < 0).astype(np.uint8))
     return Silhouette(dt * np.float32(view.scale), view.x0, view.y0, view.scale)
 
 
