@@ -25,10 +25,10 @@ from mocap.calibration import Calibration
 from mocap.triangulation import triangulate
 from mocap.types import Detections, Trajectories
 
-__all__ = ["fill_from_free_blobs"]
+__all__ = ["fill_from_free_blobs", "free_blobs"]
 
 
-def _free_blobs(blobs: np.ndarray, used_xy: np.ndarray) -> np.ndarray:
+def free_blobs(blobs: np.ndarray, used_xy: np.ndarray) -> np.ndarray:
     """``(n,)`` bool: blobs ``(n, 2)`` that are none of the measurements ``used_xy`` ``(k, 2)``."""
     used_xy = used_xy[np.isfinite(used_xy).all(axis=1)]
     if len(blobs) == 0 or len(used_xy) == 0:
@@ -80,7 +80,7 @@ def fill_from_free_blobs(traj: Trajectories, measured_xy: np.ndarray, detections
     added = 0
     for f in np.flatnonzero(missing.any(axis=1)):
         blobs = [detections[c][f].xy for c in range(C)]
-        free = [_free_blobs(blobs[c], measured_xy[f, c][kept[f]]) for c in range(C)]
+        free = [free_blobs(blobs[c], measured_xy[f, c][kept[f]]) for c in range(C)]
         markers = np.flatnonzero(missing[f])
         uv = calibration.project(predicted[f, markers])                       # (C, n, 2)
         for i, m in enumerate(markers):

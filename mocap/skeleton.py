@@ -318,6 +318,38 @@ class SkeletonSolver:
         rms = float(np.sqrt((r @ r) / n))
         return q, rms, it, H
 
+    def solve_frame(self, obs: np.ndarray, ok: np.ndarray, q0: np.ndarray,
+                    prior: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """One frame fitted to markers ``obs (M, 3)`` where ``ok (M,)``, warm-started from ``q0``;
+        hinges the markers leave free are pulled to ``prior`` (``(nq,)`` configuration, default
+        ``q0``), as a tracked frame's to the previous frame's. Returns the configuration ``(nq,)``
+        and its covariance ``(nv, nv)`` in the tangent space for markers measured with
+        ``IKParams.marker_noise_m`` (a free hinge's is set by the prior's weight alone)."""
+        prior = q0 if prior is None else prior
+        q, _, _, H = self._solve_frame(obs, ok, q0, prior[7:], self.params.max_iterations)
+        try:
+            cov = self.params.marker_noise_m**2 * np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            cov = np.full(H.shape, np.inf)
+        return q, cov
+
+    def covariance(self, q: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """``(nv, nv)``: the covariance of configuration ``q`` fitted to the markers ``ok (M,)``
+        measured with ``IKParams.marker_noise_m`` (Gauss-Newton, with the fit's pull on hinges)."""
+        J = self._markers_and_jacobian(q)[1][ok].reshape(-1, self.model.nv)
+        H = J.T @ J
+        H[6:, 6:] += self.params.regularization_m_per_rad**2 * np.eye(self.model.nv - 6)
+        try:
+            return self.params.marker_noise_m**2 * np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            return np.full(H.shape, np.inf)
+
+    def marker_spread_m(self, q: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """``(M,)`` m: how far each model marker may lie from where ``q`` puts it, given the
+        configuration's covariance ``cov (nv, nv)`` (root of the trace of ``J cov J^T``)."""
+        J = self._markers_and_jacobian(q)[1]                                           # (M, 3, nv)
+        return np.sqrt(np.clip(np.einsum("mik,kl,mil->m", J, cov, J), 0.0, None))
+
     def solve(self, traj: Trajectories, bridge: bool = True) -> SkeletonFit:
         """Fit every frame of ``traj`` (markers matched by label; unknown labels ignored).
 
