@@ -307,6 +307,49 @@ class ClusterMarkerModel:
             idx[best[1]] = pts
         return idx
 
+    def reacquire_groups(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Label again a rigid group with fewer than two labelled members where its shape appears
+        among the free points at one place only, with its labels put so that its labelled
+        surroundings sit where the trial had them in the group's frame.
+
+        Why: nothing else brings such a group back. Its members are predicted from each other
+        (a triad's neighbours are two of its own and two across a joint), so with the group lost
+        whole none is predicted, and extrapolated from where it was lost it takes whatever point
+        comes near (c3d_racing_propulsion: the right scapula triad, lost whole in frames 103-110,
+        was never labelled again; the left forearm triad, lost in frames 41-42, came back on the
+        glove's points). The placement is taken only where it is unambiguous: it fits the labelled
+        surroundings (one at least) within three spreads on average, and every other placement
+        or labelling of the free points fits four times worse. Asking for two of the surroundings
+        left both scapula triads, each the other's surroundings, unlabelled together (481 against
+        94 samples reconstructed but unlabelled there)."""
+        idx = idx.copy()
+        for gi, (g, local) in enumerate(zip(self.rigid_groups, self.group_local)):
+            have = g[idx[g] >= 0]
+            ctx, mu, spread = self.group_context[gi]
+            seen = np.flatnonzero(idx[ctx] >= 0) if len(ctx) else np.zeros(0, int)
+            if len(have) >= 2 or len(seen) == 0:
+                continue
+            free = np.ones(len(points), bool)
+            free[idx[idx >= 0]] = False
+            free[idx[have]] = True  # a lone labelled member may keep its point in the group
+            scored = []
+            for R, t, mi, _ in match_rigid_cluster(local, points, self.shape_tol_m, max_matches=60, allowed=free):
+                use = mi >= 0
+                if use.sum() < min(len(g), 4) or any(mi[list(g).index(m)] != idx[m] for m in have):
+                    continue
+                loc = (points[idx[ctx[seen]]] - t) @ R
+                score = float(np.mean((np.linalg.norm(loc - mu[seen], axis=1) / spread[seen]) ** 2))
+                scored.append((score, g[use], mi[use]))
+            if not scored:
+                continue
+            scored.sort(key=lambda s: s[0])
+            score, labels, pts = scored[0]
+            if score > 9.0 or (len(scored) > 1 and scored[1][0] < 4.0 * score):
+                continue
+            idx[have] = -1
+            idx[labels] = pts
+        return idx
+
     def rigidly_placed(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Labels ``(M,)`` bool whose point keeps its rigid group's shape with at least two other
         labelled members (every distance among them within ``shape_tol_m`` of the trial's).
@@ -335,6 +378,20 @@ class ClusterMarkerModel:
                 if gap < min(self.gate_m[a], self.gate_m[b]):
                     pairs.add((min(a, b), max(a, b)))
         return sorted(pairs)
+
+    def _adrift(self, previous: Sequence[np.ndarray]) -> np.ndarray:
+        """Members ``(M,)`` bool of rigid groups that the previous frame (``previous[-1]``, its
+        labelled positions) neither labelled nor could predict from their neighbours: their
+        position is where they were lost, and a fast hand's triad is 40-90 mm from there a frame
+        later (c3d_racing_propulsion), nearer another triad's points than its own."""
+        out = np.zeros(len(self.labels), bool)
+        if not previous or not self.rigid_groups:
+            return out
+        prev = previous[-1]
+        members = np.unique(np.concatenate(self.rigid_groups))
+        known = np.isfinite(prev[members]).all(axis=1) | np.isfinite(self.predict(prev, members)).all(axis=1)
+        out[members[~known]] = True
+        return out
 
     def _dependants(self, a: int, b: int) -> np.ndarray:
         """Markers ``a``, ``b`` and those predicted from either."""
@@ -417,7 +474,16 @@ class ClusterMarkerModel:
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
         last = state  # the previous frame's markers (labelled, else predicted)
         pred = constant_velocity(state, previous)
-        idx = assign_to_predictions(pred, points, gates[0], allowed=trusted)
+        # A rigid group's member neither labelled nor predicted in the previous frame takes a point
+        # by motion only within the tight gate: its group's shape brings it back
+        # (:meth:`reacquire_groups`), not the wide gate around where it was lost.
+        adrift = self._adrift(previous)
+        idx = assign_to_predictions(np.where(adrift[:, None], np.nan, pred), points, gates[0], allowed=trusted)
+        if adrift.any():
+            free_points = trusted.copy()
+            free_points[idx[idx >= 0]] = False
+            more = assign_to_predictions(np.where(adrift[:, None], pred, np.nan), points, gates[1], allowed=free_points)
+            idx = np.where(more >= 0, more, idx)
         # Ambiguous two-view points: only within the tight gate of the motion prediction.
         free_points = ~trusted
         free_points[idx[idx >= 0]] = False
@@ -431,12 +497,14 @@ class ClusterMarkerModel:
         model = self.predict(pos)
         bad = (idx >= 0) & np.isfinite(model).all(axis=1) & (np.linalg.norm(pos - model, axis=1) > self.gate_m)
         idx[bad & ~self.rigidly_placed(idx, points)] = -1
+        idx = self.reacquire_groups(idx, points)
         # Growth takes trusted points within the marker's gate, and ambiguous two-view points
         # only within the tight gate (the MarkerModel rule): a knee marker's two-view point 32 mm
         # from the shank marker lost to a merged point was inside the shank marker's 49 mm gate,
         # and the labels of the two crossed for the rest of c3d_codamotion_walk.
         idx = self._grow(idx, points, trusted)
         idx = self._grow(idx, points, np.ones(len(points), bool), gate_m=np.minimum(self.gate_m, gates[1]))
+        idx = self.reacquire_groups(idx, points)
         idx = self.keep_rigid_orientation(idx, points, last)
         pos = point_positions(points, idx)
         model = self.predict(pos)
