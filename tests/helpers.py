@@ -1,5 +1,6 @@
 """What several test modules share besides fixtures (those are in ``conftest.py``): a marker's
-blob centroid found through the exact id map, and the settings of a tiny run for sweep files.
+blob centroid found through the exact id map, the settings of a tiny run for sweep files, a ring
+of cameras around the subject, and marker sites by MuJoCo forward kinematics.
 
 pytest puts ``tests/`` on ``sys.path`` (its default "prepend" import mode, no ``__init__.py``
 here), so test modules import this as ``helpers``.
@@ -8,8 +9,10 @@ here), so test modules import this as ``helpers``.
 from __future__ import annotations
 
 import cv2
+import mujoco
 import numpy as np
 
+from mocap.calibration import Calibration, calibration_from_arrays
 from simbench.render import ids as idc
 
 #: The ``[set]`` table of a tiny run of the quickstart in a sweep file: 2 cameras at 320x240,
@@ -71,3 +74,33 @@ n_views = {n_views}
 board_exposure_ms = 12.0
 wand_frames = {wand_frames}
 {extra}"""
+
+
+def ring_calibration(n: int, radius_m: float, target_m: tuple[float, float, float], focal_px: float,
+                     size: tuple[int, int], phase_rad: float) -> Calibration:
+    """``n`` distortion-free cameras on a circle of ``radius_m`` at 2 m height, the first at
+    ``phase_rad``, each looking at ``target_m`` with the image's x axis level."""
+    Rs, ts = [], []
+    target = np.asarray(target_m, float)
+    for i in range(n):
+        az = 2 * np.pi * i / n + phase_rad
+        centre = np.array([radius_m * np.cos(az), radius_m * np.sin(az), 2.0])
+        z = (target - centre) / np.linalg.norm(target - centre)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        Rs.append(R)
+        ts.append(-R @ centre)
+    K = np.array([[focal_px, 0, size[0] / 2], [0, focal_px, size[1] / 2], [0, 0, 1]])
+    return calibration_from_arrays([f"cam{i}" for i in range(n)], size, [K] * n, [np.zeros(5)] * n, Rs, ts)
+
+
+def site_positions(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """World positions ``(F, nsite, 3)`` m of every site of ``model`` at each configuration ``qpos (F, nq)``."""
+    data = mujoco.MjData(model)
+    sites = np.zeros((len(qpos), model.nsite, 3))
+    for f, q in enumerate(qpos):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        sites[f] = data.site_xpos
+    return sites

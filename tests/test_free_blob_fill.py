@@ -4,32 +4,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from mocap.calibration import calibration_from_arrays
 from mocap.free_blob_fill import fill_from_free_blobs
 from mocap.types import Detections, Trajectories
 
+from helpers import ring_calibration
+
 LIMITS_MM = (5.0, 10.0)
-
-
-def _rig(n: int = 3):
-    Rs, ts = [], []
-    for i in range(n):
-        az = 2 * np.pi * i / n + 0.5
-        centre, target = np.array([3 * np.cos(az), 3 * np.sin(az), 2.0]), np.array([0.0, 0.0, 1.0])
-        z = (target - centre) / np.linalg.norm(target - centre)
-        x = np.cross(z, [0.0, 0.0, 1.0])
-        x /= np.linalg.norm(x)
-        R = np.stack([x, np.cross(z, x), z])
-        Rs.append(R)
-        ts.append(-R @ centre)
-    K = np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]])
-    return calibration_from_arrays([f"cam{i}" for i in range(n)], (640, 480), [K] * n, [np.zeros(5)] * n, Rs, ts)
 
 
 def _scene(rng: np.random.Generator):
     """Three frames of 12 markers 6-30 cm apart, every blob detected; every label kept but
     marker 0 (its point dropped by the check) in frame 1."""
-    cal = _rig()
+    cal = ring_calibration(3, 3.0, (0.0, 0.0, 1.0), 600.0, (640, 480), 0.5)
     F, M = 3, 12
     xyz = rng.uniform([-0.3, -0.3, 0.6], [0.3, 0.3, 1.4], (M, 3))[None] + np.linspace(0, 0.02, F)[:, None, None]
     uv = np.stack([cal.project(xyz[f]) for f in range(F)])                # (F, C, M, 2)

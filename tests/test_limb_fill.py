@@ -12,7 +12,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from mocap.calibration import calibration_from_arrays
 from mocap.free_blob_fill import fill_from_free_blobs
 from mocap.limb_fill import fill_limbs_from_free_blobs
 from mocap.marker_pipeline import _constrained
@@ -22,24 +21,11 @@ from mocap.subject import SubjectModel
 from mocap.types import Detections, Trajectories
 from simbench.scenes.humanoid import BodyParams, humanoid_mjcf
 
+from helpers import ring_calibration, site_positions
+
 LIMITS_MM = (5.0, 10.0)
 LEG = ["RTHI", "RKNE", "RTIB", "RANK", "RHEE", "RTOE"]
 LOST = slice(4, 9)
-
-
-def _rig(n: int = 4):
-    Rs, ts = [], []
-    for i in range(n):
-        az = 2 * np.pi * i / n + 0.4
-        centre, target = np.array([4 * np.cos(az), 4 * np.sin(az), 2.0]), np.array([0.2, 0.0, 0.9])
-        z = (target - centre) / np.linalg.norm(target - centre)
-        x = np.cross(z, [0.0, 0.0, 1.0])
-        x /= np.linalg.norm(x)
-        R = np.stack([x, np.cross(z, x), z])
-        Rs.append(R)
-        ts.append(-R @ centre)
-    K = np.array([[900.0, 0, 640], [0, 900.0, 480], [0, 0, 1]])
-    return calibration_from_arrays([f"cam{i}" for i in range(n)], (1280, 960), [K] * n, [np.zeros(5)] * n, Rs, ts)
 
 
 @pytest.fixture(scope="module")
@@ -56,14 +42,9 @@ def scene():
     for name, q in (("hip_r_y", -0.3 - 0.4 * swing), ("knee_r", 0.4 + 0.4 * swing), ("ankle_r_y", 0.2 + 0.2 * swing),
                     ("hip_l_y", -0.15 + 0.15 * swing), ("knee_l", 0.2 - 0.15 * swing)):
         qpos[:, model.jnt_qposadr[names.index(name)]] = q
-    data = mujoco.MjData(model)
-    sites = np.zeros((len(t), model.nsite, 3))
-    for f, q in enumerate(qpos):
-        data.qpos[:] = q
-        mujoco.mj_kinematics(model, data)
-        sites[f] = data.site_xpos
+    sites = site_positions(model, qpos)
     labels = [model.site(i).name for i in range(model.nsite)]
-    cal = _rig()
+    cal = ring_calibration(4, 4.0, (0.2, 0.0, 0.9), 900.0, (1280, 960), 0.4)
     uv = np.stack([cal.project(sites[f]) for f in range(len(t))])         # (F, C, M, 2)
     dets = [[Detections(uv[f, c].copy(), np.full(len(labels), 20.0), np.full(len(labels), 200.0))
              for f in range(len(t))] for c in range(len(cal))]

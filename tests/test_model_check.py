@@ -18,6 +18,8 @@ from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 from simbench.scenes.humanoid import BodyParams, humanoid_mjcf
 
+from helpers import site_positions
+
 NOISE_M = 0.0005
 LIMIT_MM = 10.0
 
@@ -36,12 +38,7 @@ def walk():
     qpos[:, 3] = 1.0
     qpos[:, 0] = 0.8 * t
     qpos[:, 2] = 0.95
-    data = mujoco.MjData(model)
-    sites = np.zeros((len(t), model.nsite, 3))
-    for f, q in enumerate(qpos):
-        data.qpos[:] = q
-        mujoco.mj_kinematics(model, data)
-        sites[f] = data.site_xpos
+    sites = site_positions(model, qpos)
     names = [model.site(i).name for i in range(model.nsite)]
     solver = SkeletonSolver(SubjectModel.from_mjcf_text(xml, name="pig"))
     return solver, names, sites, t
