@@ -159,6 +159,33 @@ class ClusterMarkerModel:
                     if j not in g and near[j] and spread[j] < 0.06 and np.isfinite(spread[j])][:4]
             cand = np.array(cand, dtype=int)
             self.group_context.append((cand, mu[cand], np.maximum(spread[cand], 0.005)))
+        self.group_partners = self._learn_partners(xyz, ok)
+
+    def _learn_partners(self, xyz: np.ndarray, ok: np.ndarray) -> list[list[tuple[int, np.ndarray, float]]]:
+        """For each rigid group, the groups within 0.3 m whose orientation relative to it stayed
+        within 90 deg of its mean over the trial: ``(other group, mean relative rotation, largest
+        deviation (rad))``. A forearm triad and its glove's turn at the wrist up to 77-84 deg from
+        their mean relative orientation (c3d_racing_propulsion); a glove triad's two labels
+        exchanged turn it 180 deg about an axis in its plane, at least 96 deg from it."""
+        rot = []
+        for g, local in zip(self.rigid_groups, self.group_local):
+            R = np.full((len(xyz), 3, 3), np.nan)
+            for f in np.flatnonzero(ok[:, g].all(axis=1)):
+                R[f] = kabsch(local, xyz[f, g])[0]
+            rot.append(R)
+        partners: list[list[tuple[int, np.ndarray, float]]] = [[] for _ in self.rigid_groups]
+        for a, b in permutations(range(len(self.rigid_groups)), 2):
+            both = np.isfinite(rot[a][:, 0, 0]) & np.isfinite(rot[b][:, 0, 0])
+            far = np.linalg.norm(self.group_local[a].mean(axis=0) - self.group_local[b].mean(axis=0)) > 0.3
+            if both.sum() < 10 or far:
+                continue
+            rel = np.einsum("fji,fjk->fik", rot[a][both], rot[b][both])     # R_a^T R_b
+            U, _, Vt = np.linalg.svd(rel.sum(axis=0))                        # chordal mean rotation
+            mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+            dev = np.arccos(np.clip((np.einsum("fij,ij->f", rel, mean) - 1.0) / 2.0, -1.0, 1.0))
+            if dev.max() < np.radians(90.0):
+                partners[a].append((b, mean, float(dev.max())))
+        return partners
 
     def markers(self, state: np.ndarray) -> np.ndarray:
         return state
@@ -319,9 +346,13 @@ class ClusterMarkerModel:
         was never labelled again; the left forearm triad, lost in frames 41-42, came back on the
         glove's points). The placement is taken only where it is unambiguous: it fits the labelled
         surroundings (one at least) within three spreads on average, and every other placement
-        or labelling of the free points fits four times worse. Asking for two of the surroundings
-        left both scapula triads, each the other's surroundings, unlabelled together (481 against
-        94 samples reconstructed but unlabelled there)."""
+        or labelling of the free points fits four times worse, or else exactly one of those within
+        four times turns the group, relative to a partner group (:meth:`_learn_partners`), as the
+        trial ever did and none of the others within 1.5 times that (the left glove's one hand
+        marker, near the triad's axis, fitted two labellings about as well in frames 36-43, and the
+        glove's points, unlabelled there, were filled 51 mm RMS off). Asking for two of the
+        surroundings left both scapula triads, each the other's surroundings, unlabelled together
+        (481 against 94 samples reconstructed but unlabelled there)."""
         idx = idx.copy()
         for gi, (g, local) in enumerate(zip(self.rigid_groups, self.group_local)):
             have = g[idx[g] >= 0]
@@ -344,11 +375,42 @@ class ClusterMarkerModel:
                 continue
             scored.sort(key=lambda s: s[0])
             score, labels, pts = scored[0]
-            if score > 9.0 or (len(scored) > 1 and scored[1][0] < 4.0 * score):
+            if score > 9.0:
                 continue
+            rivals = [s for s in scored if s[0] < 4.0 * score]
+            if len(rivals) > 1:
+                # Surroundings that cannot tell the rivals apart (one hand marker near the triad's
+                # axis): the partner group's orientation may, where exactly one lies within the trial's.
+                dev = [self._partner_deviation(gi, lab, p, idx, points) for _, lab, p in rivals]
+                inside = [k for k, d in enumerate(dev) if d is not None and d <= 1.0]
+                if len(inside) != 1 or any(d is None or (d <= 1.5 and k != inside[0]) for k, d in enumerate(dev)):
+                    continue
+                score, labels, pts = rivals[inside[0]]
             idx[have] = -1
             idx[labels] = pts
         return idx
+
+    def _partner_deviation(self, gi: int, labels: np.ndarray, pts: np.ndarray, idx: np.ndarray,
+                           points: np.ndarray) -> float | None:
+        """How far group ``gi`` with ``labels`` on points ``pts`` turns from where the trial had it
+        relative to its fully labelled partners (:meth:`_learn_partners`) that keep their shape:
+        the largest deviation over them, as a fraction of the trial's largest; None without any."""
+        worst = None
+        for gj, mean, limit in self.group_partners[gi]:
+            other = self.rigid_groups[gj]
+            if not (idx[other] >= 0).all():
+                continue
+            q = points[idx[other]]
+            shape = np.linalg.norm(q[:, None] - q[None], axis=2) - self.mean_dist_m[np.ix_(other, other)]
+            if np.abs(shape).max() > self.shape_tol_m:
+                continue  # a partner on a wrong point would turn this group wrong
+            g = self.rigid_groups[gi]
+            R = kabsch(self.group_local[gi][np.searchsorted(g, labels)], points[pts])[0]
+            R_other = kabsch(self.group_local[gj], q)[0]
+            rel = R.T @ R_other
+            dev = float(np.arccos(np.clip((np.trace(rel @ mean.T) - 1.0) / 2.0, -1.0, 1.0))) / limit
+            worst = dev if worst is None else max(worst, dev)
+        return worst
 
     def rigidly_placed(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Labels ``(M,)`` bool whose point keeps its rigid group's shape with at least two other
@@ -482,7 +544,8 @@ class ClusterMarkerModel:
         if adrift.any():
             free_points = trusted.copy()
             free_points[idx[idx >= 0]] = False
-            more = assign_to_predictions(np.where(adrift[:, None], pred, np.nan), points, gates[1], allowed=free_points)
+            more = assign_to_predictions(np.where(adrift[:, None], pred, np.nan), points, gates[1],
+                                         allowed=free_points)
             idx = np.where(more >= 0, more, idx)
         # Ambiguous two-view points: only within the tight gate of the motion prediction.
         free_points = ~trusted
