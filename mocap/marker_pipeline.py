@@ -508,7 +508,7 @@ def _constrained(solver, fit, labels: list[str], max_spread_mm: float) -> np.nda
     known = cols >= 0
     for f in np.flatnonzero(np.isfinite(fit.q).all(axis=1)):
         ok = np.isfinite(fit.marker_errors_mm[f])
-        spread_mm = 1e3 * solver.marker_spread_m(fit.q[f], solver.covariance(fit.q[f], ok))
+        spread_mm = 1e3 * solver.measured_spread_m(fit.q[f], ok)
         out[f, known] = spread_mm[cols[known]] < max_spread_mm
     return out
 

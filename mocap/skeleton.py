@@ -102,6 +102,11 @@ class IKParams:
                               "bridge_std_deg"), positive=False)
 
 
+def _spread_m(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``(M,)``: root of the trace of ``J cov J^T`` per marker, ``J (M, 3, nv)``."""
+    return np.sqrt(np.clip(np.einsum("mik,kl,mil->m", J, cov, J), 0.0, None))
+
+
 class SkeletonSolver:
     """Pinocchio model of a subject with its markers, and the per-frame IK on it.
 
@@ -333,22 +338,24 @@ class SkeletonSolver:
             cov = np.full(H.shape, np.inf)
         return q, cov
 
-    def covariance(self, q: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        """``(nv, nv)``: the covariance of configuration ``q`` fitted to the markers ``ok (M,)``
-        measured with ``IKParams.marker_noise_m`` (Gauss-Newton, with the fit's pull on hinges)."""
-        J = self._markers_and_jacobian(q)[1][ok].reshape(-1, self.model.nv)
-        H = J.T @ J
+    def measured_spread_m(self, q: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        """``(M,)`` m: :meth:`marker_spread_m` of configuration ``q`` fitted to the markers
+        ``ok (M,)`` measured with ``IKParams.marker_noise_m`` (Gauss-Newton covariance, with the
+        fit's pull on hinges); the markers' Jacobian is computed once for both."""
+        J = self._markers_and_jacobian(q)[1]                                           # (M, 3, nv)
+        Jok = J[ok].reshape(-1, self.model.nv)
+        H = Jok.T @ Jok
         H[6:, 6:] += self.params.regularization_m_per_rad**2 * np.eye(self.model.nv - 6)
         try:
-            return self.params.marker_noise_m**2 * np.linalg.inv(H)
+            cov = self.params.marker_noise_m**2 * np.linalg.inv(H)
         except np.linalg.LinAlgError:
-            return np.full(H.shape, np.inf)
+            cov = np.full(H.shape, np.inf)
+        return _spread_m(J, cov)
 
     def marker_spread_m(self, q: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """``(M,)`` m: how far each model marker may lie from where ``q`` puts it, given the
         configuration's covariance ``cov (nv, nv)`` (root of the trace of ``J cov J^T``)."""
-        J = self._markers_and_jacobian(q)[1]                                           # (M, 3, nv)
-        return np.sqrt(np.clip(np.einsum("mik,kl,mil->m", J, cov, J), 0.0, None))
+        return _spread_m(self._markers_and_jacobian(q)[1], cov)
 
     def solve(self, traj: Trajectories, bridge: bool = True) -> SkeletonFit:
         """Fit every frame of ``traj`` (markers matched by label; unknown labels ignored).
