@@ -44,6 +44,11 @@ def _prediction_rms(xyz: np.ndarray, ok: np.ndarray, m: int, nb: np.ndarray) -> 
 MAX_TURN_RAD = np.radians(60.0)
 
 
+def _label_orderings(group: np.ndarray, n: int) -> np.ndarray:
+    """``(P, n)`` every ordered choice of ``n`` labels of ``group``, in ``itertools.permutations`` order."""
+    return np.array(list(permutations(group.tolist(), n)), dtype=np.intp).reshape(-1, n)
+
+
 def _turn(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) of the rotation that takes points ``a`` onto ``b`` (least squares)."""
     R, _ = kabsch(a, b)
@@ -315,10 +320,12 @@ class ClusterMarkerModel:
         pts = idx[have]
         d_now = np.linalg.norm(points[pts][:, None] - points[pts][None], axis=2)
         current, best = None, None
-        for labels in permutations(g, len(have)):
-            labels = np.array(labels)
-            if np.abs(self.mean_dist_m[np.ix_(labels, labels)] - d_now).max() > self.shape_tol_m:
-                continue
+        # Every ordering of the group's labels over its points at once (at most 5! = 120), the
+        # shape test vectorised: a static take's 35 groups made this loop a third of the labelling
+        # (Res16bits, 100 frames: 37 of 105 s). Same orderings, same order, same figures.
+        perms = _label_orderings(g, len(have))
+        shape_ok = ~(np.abs(self.mean_dist_m[perms[:, :, None], perms[:, None, :]] - d_now).max(axis=(1, 2)) > self.shape_tol_m)
+        for labels in perms[shape_ok]:
             R, t = kabsch(local[np.searchsorted(g, labels)], points[pts])
             loc = (points[idx[seen]] - t) @ R
             score = float(np.mean((np.linalg.norm(loc - mu[k], axis=1) / spread[k]) ** 2))
