@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mocap.distance_transform import exact_distance_transform
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel
+from mocap.shirt.edt import exact_distances
 from mocap.shirt.shirt_model import CropView
 
 __all__ = [
@@ -36,6 +36,8 @@ __all__ = [
     "other_distance",
     "classify_gaussian",
     "best_reference",
+    "PatchDistances",
+    "patch_distances",
     "distance_to_patches",
     "classify_pose_assisted",
     "assign_patches",
@@ -195,6 +197,59 @@ def best_reference(linear_rgb: np.ndarray, model: ColourModel, references: list[
     return best_i, best_c
 
 
+@dataclass(frozen=True)
+class PatchDistances:
+    """Distances from query pixels to the patches of a rendered map, kept per map cell (:func:`patch_distances`).
+
+    Attributes
+    ----------
+    cells : (P, c) float32
+        Distance (working pixels of the full crop) from every cell of the reduced map to
+        the nearest cell of each patch; ``inf`` for patches absent from the map.
+    cell : (n,) int
+        The cell of each query pixel.
+    """
+
+    cells: np.ndarray
+    cell: np.ndarray
+
+    def pixels(self) -> np.ndarray:
+        """``(P, n)`` float32: the distances of the query pixels (:func:`distance_to_patches`)."""
+        return self.cells[:, self.cell]
+
+
+def patch_distances(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int, reduce: int = 1) -> PatchDistances:
+    """:func:`distance_to_patches` per map cell, with the cell of every query pixel (no ``(P, n)`` array)."""
+    pm = np.asarray(patch_map)
+    r0 = pm.shape[0]
+    if reduce > 1:
+        r = r0 // reduce
+        pm = pm[: r * reduce, : r * reduce]
+    else:
+        r = r0
+    f = full_size / r
+    ys, xs = np.divmod(np.asarray(idx), full_size)
+    cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
+    present = np.unique(pm[pm >= 0])
+    D = np.full((n_patches, r * r), np.inf, np.float32)
+    if present.size == 0:
+        return PatchDistances(D, cell)
+    # not-this-patch masks of all present patches at once, (m, r, r) uint8
+    other = pm[None] != present[:, None, None]
+    if reduce > 1:
+        # a cell is not the patch if none of its pixels is (strided ANDs: far faster than .all over axes)
+        pooled = other[:, ::reduce, ::reduce].copy()
+        for dy in range(reduce):
+            for dx in range(reduce):
+                if dy or dx:
+                    pooled &= other[:, dy::reduce, dx::reduce]
+        other = pooled
+    # distances per map cell (all patches in one compiled call); the query pixels gather them
+    D[present] = exact_distances(other.view(np.uint8)).reshape(len(present), r * r)
+    D[present] *= np.float32(f)
+    return PatchDistances(D, cell)
+
+
 def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int, reduce: int = 1) -> np.ndarray:
     """Distance ``(P, n)`` float32 (working pixels of the full crop) from pixels to the nearest pixel of each patch.
 
@@ -216,36 +271,7 @@ def distance_to_patches(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, 
     (P, n) float32
         ``inf`` for patches absent from the map.
     """
-    pm = np.asarray(patch_map)
-    r0 = pm.shape[0]
-    if reduce > 1:
-        r = r0 // reduce
-        pm = pm[: r * reduce, : r * reduce]
-    else:
-        r = r0
-    f = full_size / r
-    ys, xs = np.divmod(np.asarray(idx), full_size)
-    cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
-    present = np.unique(pm[pm >= 0])
-    if present.size == 0:
-        return np.full((n_patches, len(cell)), np.inf, np.float32)
-    # not-this-patch masks of all present patches at once, (m, r, r) uint8
-    other = pm[None] != present[:, None, None]
-    if reduce > 1:
-        # a cell is not the patch if none of its pixels is (strided ANDs: far faster than .all over axes)
-        pooled = other[:, ::reduce, ::reduce].copy()
-        for dy in range(reduce):
-            for dx in range(reduce):
-                if dy or dx:
-                    pooled &= other[:, dy::reduce, dx::reduce]
-        other = pooled
-    other = other.view(np.uint8)
-    # distances per map cell, then one gather for all query pixels
-    D = np.full((n_patches, r * r), np.inf, np.float32)
-    for i, p in enumerate(present):
-        D[p] = exact_distance_transform(other[i]).ravel()
-    D[present] *= np.float32(f)
-    return D[:, cell]
+    return patch_distances(patch_map, n_patches, idx, full_size, reduce).pixels()
 
 
 def classify_pose_assisted(linear_rgb: np.ndarray, model: ColourModel, W: np.ndarray, colour_distance_px: np.ndarray,
@@ -283,7 +309,7 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
         Classified colour ids, -1 for none.
     idx : (n,) int
         Flat indices of the pixels ``patch_distance`` describes (the foreground).
-    patch_distance : (P, n) float
+    patch_distance : (P, n) float or PatchDistances
         Distance from those pixels to each rendered patch (``inf`` if not rendered).
     patch_colour : (P,) int
     gate : float
@@ -310,7 +336,10 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
         return out.reshape(colour.shape)
     sel = np.flatnonzero(ok)
     cand = table[c[ok]]  # (n, m)
-    d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
+    if isinstance(patch_distance, PatchDistances):
+        d = np.where(cand >= 0, patch_distance.cells[np.maximum(cand, 0), patch_distance.cell[sel][:, None]], np.inf)
+    else:
+        d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
     j = d.argmin(axis=1)
     r = np.arange(len(sel))
     good = d[r, j] <= gate

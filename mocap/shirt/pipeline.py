@@ -78,7 +78,7 @@ from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (assign_patches, best_reference, classify_gaussian,
-                                  classify_pose_assisted, crop_image, crop_view, distance_to_patches, foreground_pixels, other_distance,
+                                  classify_pose_assisted, crop_image, crop_view, foreground_pixels, PatchDistances, patch_distances, other_distance,
                                   patch_centroids)
 from mocap.shirt.colour_model import (SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means,
                                      solve_white_balance)
@@ -228,6 +228,7 @@ class ShirtTracker:
         self._first_fraction: list[float | None] = [None] * C
         self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
         self._frames = 0  # frames finished
+        self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
         self._root_active = np.zeros(UPPER_NV, bool)
         self._root_active[:6] = True
         K = colour_model.n_colours
@@ -516,6 +517,7 @@ class ShirtTracker:
             raise MocapInputError(f"ShirtTracker.process: {len(images)} images for {C} cameras")
         T = {s: 0.0 for s in STAGES}
         clock = time.perf_counter
+        self._thin_out = {}
         obs = [CameraObservation() for _ in range(C)]
 
         # 0. background subtraction
@@ -654,11 +656,14 @@ class ShirtTracker:
             rend, idx, pdist = renders[ci] if ci in renders else self._render_distances(prior_pose, ci, o, crop.linear, crop.foreground)
             if p.pose_prior:
                 # each colour's distance: the least over its patches (patches sorted by colour)
+                # (per map cell, then gathered for the pixels: a minimum commutes with the gather)
+                cells = pdist.cells
                 if self._colour_starts is not None:
-                    cdist = np.minimum.reduceat(pdist[self._colour_order], self._colour_starts, axis=0) * np.float32(o.view.scale)
+                    cmin = np.minimum.reduceat(cells[self._colour_order], self._colour_starts, axis=0)
                 else:
-                    cdist = np.stack([pdist[m].min(axis=0) if m.size else np.full(pdist.shape[1:], np.inf, np.float32)
-                                      for m in self._colour_members]) * np.float32(o.view.scale)
+                    cmin = np.stack([cells[m].min(axis=0) if m.size else np.full(cells.shape[1:], np.inf, np.float32)
+                                     for m in self._colour_members])
+                cdist = cmin[:, pdist.cell] * np.float32(o.view.scale)
                 # C = 6 / s, s the side of the shirt's square (image pixels)
                 final = classify_pose_assisted(crop.linear, self.colours, self.W[ci], cdist, p.prior_c / (o.tiny.side * o.view.scale),
                                                crop.foreground, p.assisted_threshold, crop.distances, self.other, o.pixels,
@@ -677,7 +682,7 @@ class ShirtTracker:
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
         rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
         idx = o.pixels[0]
-        return rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
+        return rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
 
     def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
         """The pose whose id map steps 3 and 4 use: the blended pose, or the previous frame's when that one agrees
@@ -697,7 +702,7 @@ class ShirtTracker:
         out = {}
         for ci, rend in renders[best].items():
             idx = obs[ci].pixels[0]
-            out[ci] = (rend, idx, distance_to_patches(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
+            out[ci] = (rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
         return (self.q_prev if best else q_b), out
 
     def _agreement(self, poses: list[np.ndarray], obs: list[CameraObservation], seen: list[int]) -> tuple[list[float], list[dict]]:
@@ -744,7 +749,7 @@ class ShirtTracker:
             scores.append(hit / max(tot, 1))
         return scores, renders
 
-    def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: np.ndarray,
+    def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: PatchDistances,
                             rend) -> Constraints:
         """Centroid constraints of one camera: classified colours split into patches by a rendered pose;
         absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer than min_patch_pixels)."""
@@ -752,7 +757,11 @@ class ShirtTracker:
         if p.thin_bits_out:
             # mixed pixels along an outline (a prop held against a box of the set's colour) can pass as a
             # patch's colour within its gate and pull its centroid (issue 18: shirt_office seeds 3 and 19)
-            colour = _without_stray_thin_bits(colour)
+            # (once per classification: the passes of a frame split the same one again)
+            kept = self._thin_out.get(ci)
+            if kept is None or kept[0] is not colour:
+                kept = self._thin_out[ci] = (colour, _without_stray_thin_bits(colour))
+            colour = kept[1]
         # pdist is in working pixels; the gate is a fraction of the shirt's size
         pm = assign_patches(colour, idx, pdist, self.model.patch_colour, gate=p.patch_gate * o.tiny.side)
         cents, counts = patch_centroids(pm, self.model.n_patches)
@@ -773,7 +782,7 @@ class ShirtTracker:
         for ci, rend in zip(cams, rends):
             o = obs[ci]
             idx = o.pixels[0]
-            pdist = distance_to_patches(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
+            pdist = patch_distances(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
             parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
         return Constraints.concatenate(parts)
 
