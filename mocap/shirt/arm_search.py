@@ -37,6 +37,7 @@ ARM_SIDES: tuple[str, ...] = ("l", "r")
 """The arms, in the order of the hinges (:data:`mocap.shirt.kinematics.UPPER_HINGES`)."""
 
 _ARM_HINGES = {"l": slice(3, 7), "r": slice(7, 11)}  # shoulder x y z, elbow, in the 11 hinges
+_CACHE_ARMS = 4096  # arms whose sample points ArmSearch keeps, per side
 
 
 @dataclass(frozen=True)
@@ -102,10 +103,33 @@ class ArmSearch:
                     col += [int(model.patch_colour[patch])] * len(sel)
             self._points[s] = (np.asarray(part), np.concatenate(pts), np.asarray(col))
         self._bodies = {s: ("thorax", f"upperarm_{s}", f"forearm_{s}") for s in ARM_SIDES}
-        self._fixed_rel = {s: self._in_thorax(s, self.fixed[s]) for s in ARM_SIDES}
+        self._cache: dict[str, dict[bytes, np.ndarray]] = {s: {} for s in ARM_SIDES}
+        self._fixed_rel = {s: self._compute_in_thorax(s, self.fixed[s]) for s in ARM_SIDES}
 
     def _in_thorax(self, side: str, arms: np.ndarray) -> np.ndarray:
-        """``(N, P, 3)``: the arm's sample points in the thorax frame for each arm configuration ``(N, 4)``."""
+        """``(N, P, 3)``: the arm's sample points in the thorax frame for each arm configuration ``(N, 4)``.
+
+        Each arm's points depend on that arm alone: they are kept per arm (the database
+        neighbours' arms come back frame after frame), up to ``_CACHE_ARMS`` of them.
+        """
+        part, pts, _ = self._points[side]
+        arms = np.asarray(arms, float)
+        out = np.empty((len(arms), len(pts), 3))
+        cache = self._cache[side]
+        keys = [a.tobytes() for a in arms]
+        todo = [i for i, k in enumerate(keys) if k not in cache]
+        if todo:
+            fresh = self._compute_in_thorax(side, arms[todo])
+            if len(cache) + len(todo) > _CACHE_ARMS:
+                cache.clear()
+            for j, i in enumerate(todo):
+                cache[keys[i]] = fresh[j]
+        for i, k in enumerate(keys):
+            out[i] = cache[k]
+        return out
+
+    def _compute_in_thorax(self, side: str, arms: np.ndarray) -> np.ndarray:
+        """:meth:`_in_thorax` computed."""
         part, pts, _ = self._points[side]
         q = self.kin.neutral()
         out = np.empty((len(arms), len(pts), 3))

@@ -117,7 +117,9 @@ class BackgroundModel:
         if self.params.match_empty <= 0:
             return np.zeros(crop.shape[:2], bool)
         limit = self.params.match_relit if self.relit else self.params.match_empty
-        return np.abs(np.asarray(crop, np.float32) - empty_crop).max(axis=2) < limit
+        d = np.abs(np.asarray(crop, np.float32) - empty_crop)
+        # the largest channel difference (np.maximum of the channels: .max(axis=2) is several times slower)
+        return np.maximum(np.maximum(d[..., 0], d[..., 1]), d[..., 2]) < limit
 
     def apply(self, image: np.ndarray, subject_box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Update with a frame and return its foreground mask ``(H / reduce, W / reduce)`` bool.

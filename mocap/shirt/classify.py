@@ -89,8 +89,11 @@ def crop_image(image: np.ndarray, view: CropView, interpolation: int = cv2.INTER
     img = np.asarray(image)
     x0, y0, side = _crop_origin(view)
     H, W = img.shape[:2]
-    sub = np.zeros((side, side) + img.shape[2:], img.dtype)
     xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + side, W), min(y0 + side, H)
+    if side != view.size and (xa, ya, xb, yb) == (x0, y0, x0 + side, y0 + side):
+        # inside the image: resampled from the image itself (the same pixels as from a copy)
+        return cv2.resize(img[y0:y0 + side, x0:x0 + side], (view.size, view.size), interpolation=interpolation)
+    sub = np.zeros((side, side) + img.shape[2:], img.dtype)
     if xb > xa and yb > ya:
         sub[ya - y0: yb - y0, xa - x0: xb - x0] = img[ya:yb, xa:xb]
     if side == view.size:

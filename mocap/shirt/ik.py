@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import numba
 import numpy as np
 import pinocchio as pin
 
@@ -140,14 +141,28 @@ class Silhouette:
     def sample(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance ``(n,)`` px at image points ``(n, 2)`` (bilinear, clamped) and its gradient ``(n, 2)`` per image px."""
         h, w = self.distance_px.shape
-        x = np.clip((uv[:, 0] - self.x0) / self.scale, 0, w - 1.001)
-        y = np.clip((uv[:, 1] - self.y0) / self.scale, 0, h - 1.001)
-        i, j = np.floor(y).astype(int), np.floor(x).astype(int)
-        fy, fx = (y - i)[:, None], (x - j)[:, None]
-        k = i * w + j
-        M = self._field
-        v = (M[k] * (1 - fx) * (1 - fy) + M[k + 1] * fx * (1 - fy) + M[k + w] * (1 - fx) * fy + M[k + w + 1] * fx * fy)
+        v = _bilinear(np.ascontiguousarray(uv, np.float64), float(self.x0), float(self.y0), float(self.scale), h, w, self._field)
         return v[:, 0], v[:, 1:]
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(uv, x0, y0, scale, h, w, M):  # pragma: no cover
+    """:meth:`Silhouette.sample`'s look-up, compiled: the operations of its former numpy form in the same order,
+    ``clip((u - x0) / scale, 0, w - 1.001)``, the cell's floor and the four weighted corners summed left to right."""
+    n = uv.shape[0]
+    out = np.empty((n, 3))
+    for a in range(n):
+        x = min(max((uv[a, 0] - x0) / scale, 0.0), w - 1.001)
+        y = min(max((uv[a, 1] - y0) / scale, 0.0), h - 1.001)
+        i = np.int64(np.floor(y))
+        j = np.int64(np.floor(x))
+        fy = y - i
+        fx = x - j
+        k = i * w + j
+        for c in range(3):
+            out[a, c] = (M[k, c] * (1 - fx) * (1 - fy) + M[k + 1, c] * fx * (1 - fy) + M[k + w, c] * (1 - fx) * fy
+                         + M[k + w + 1, c] * fx * fy)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -328,20 +343,23 @@ class ShirtIK:
         else:
             pin.forwardKinematics(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        nb = len(lay.frames)
-        R = np.empty((nb, 3, 3))
-        p = np.empty((nb, 3))
-        Jb = np.empty((nb, 6, self.model.nv)) if jacobians else None
+        r, X = self._anchor_positions(lay)
+        return X, (self._anchor_jacobians(lay, r) if jacobians else None)
+
+    def _anchor_positions(self, lay: "_Layout") -> tuple[np.ndarray, np.ndarray]:
+        """After the forward kinematics: each anchor's offset from its body's origin ``(A, 3)`` (world axes) and its world position."""
         oMf = self.data.oMf
-        for i, f in enumerate(lay.frames):
-            M = oMf[f]
-            R[i], p[i] = M.rotation, M.translation
-            if jacobians:
-                Jb[i] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        H = np.array([oMf[f].homogeneous for f in lay.frames]).reshape(len(lay.frames), 4, 4)
+        R, p = H[:, :3, :3], H[:, :3, 3]
         r = np.einsum("aij,aj->ai", R[lay.inv], lay.points)
-        X = r + p[lay.inv]
-        if not jacobians:
-            return X, None
+        return r, r + p[lay.inv]
+
+    def _anchor_jacobians(self, lay: "_Layout", r: np.ndarray) -> np.ndarray:
+        """After :func:`pinocchio.computeJointJacobians`: the anchors' Jacobians ``(A, 3, nv)`` (offsets ``r`` from
+        :meth:`_anchor_positions`)."""
+        Jb = np.empty((len(lay.frames), 6, self.model.nv))
+        for i, f in enumerate(lay.frames):
+            Jb[i] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         # v_point = v_origin + w x r = Jl - [r]x Ja
         J = Jb[lay.inv]
         JX = J[:, :3].copy()
@@ -349,15 +367,10 @@ class ShirtIK:
         JX[:, 0] -= r[:, 1, None] * Ja[:, 2] - r[:, 2, None] * Ja[:, 1]
         JX[:, 1] -= r[:, 2, None] * Ja[:, 0] - r[:, 0, None] * Ja[:, 2]
         JX[:, 2] -= r[:, 0, None] * Ja[:, 1] - r[:, 1, None] * Ja[:, 0]
-        return X, JX
+        return JX
 
-    def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False, layout: "_Layout | None" = None):
-        """Model centroids ``(n, 2)`` px of the constraints at ``q`` (and their Jacobians ``(n, 2, nv)``)."""
-        lay = self._layout(cons) if layout is None else layout
-        n, nv = len(cons), self.model.nv
-        if not len(lay.inv):
-            return np.zeros((n, 2)), (np.zeros((n, 2, nv)) if jacobians else None)
-        X, JX = self._anchors_world(q, lay, jacobians)
+    def _project_anchors(self, X: np.ndarray, lay: "_Layout"):
+        """Model centroids ``(n, 2)`` px from world anchors ``X (A, 3)``, and the anchors' depths and normalised coordinates."""
         Xc = np.einsum("aij,aj->ai", lay.Rc, X) + lay.tc
         z = np.maximum(Xc[:, 2], 1e-3)
         x, y = Xc[:, 0] / z, Xc[:, 1] / z
@@ -367,9 +380,10 @@ class ShirtIK:
         for ci, sel in lay.distorted:
             cam = self.cameras[ci]
             uv[sel] = cv2.projectPoints(X[sel], cam.rvec, cam.t, cam.K, cam.dist)[0].reshape(-1, 2)
-        out = lay.S @ uv
-        if not jacobians:
-            return out, None
+        return lay.S @ uv, z, x, y
+
+    def _centroid_jacobians(self, JX: np.ndarray, z: np.ndarray, x: np.ndarray, y: np.ndarray, lay: "_Layout") -> np.ndarray:
+        """``(n, 2, nv)``: the centroids' Jacobians from the anchors' (:meth:`_anchor_jacobians`) and their projection."""
         # pinhole derivative (the lens distortion's is left out: it is close to identity)
         Jp = np.zeros((len(z), 2, 3))
         Jp[:, 0, 0] = lay.fx / z
@@ -377,7 +391,19 @@ class ShirtIK:
         Jp[:, 1, 1] = lay.fy / z
         Jp[:, 1, 2] = -lay.fy * y / z
         Ja = np.matmul(np.matmul(Jp, lay.Rc), JX)  # (A, 2, nv)
-        return out, (lay.S @ Ja.reshape(len(z), -1)).reshape(n, 2, nv)
+        return (lay.S @ Ja.reshape(len(z), -1)).reshape(lay.S.shape[0], 2, self.model.nv)
+
+    def centroids(self, q: np.ndarray, cons: Constraints, jacobians: bool = False, layout: "_Layout | None" = None):
+        """Model centroids ``(n, 2)`` px of the constraints at ``q`` (and their Jacobians ``(n, 2, nv)``)."""
+        lay = self._layout(cons) if layout is None else layout
+        n, nv = len(cons), self.model.nv
+        if not len(lay.inv):
+            return np.zeros((n, 2)), (np.zeros((n, 2, nv)) if jacobians else None)
+        X, JX = self._anchors_world(q, lay, jacobians)
+        out, z, x, y = self._project_anchors(X, lay)
+        if not jacobians:
+            return out, None
+        return out, self._centroid_jacobians(JX, z, x, y, lay)
 
     # ------------------------------------------------------------------ solve
     def solve(self, q0: np.ndarray, cons: Constraints, priors: list[tuple[np.ndarray, np.ndarray]] = (),
@@ -439,8 +465,9 @@ class ShirtIK:
         """
         H = Ja.T @ Ja
         g = Ja.T @ r
+        D = np.diag(np.diag(H)) + 1e-9 * np.eye(len(H))
         for _ in range(6):
-            A = H + lam * (np.diag(np.diag(H)) + 1e-9 * np.eye(len(H)))
+            A = H + lam * D
             try:
                 step = -np.linalg.solve(A, g)
             except np.linalg.LinAlgError:
@@ -481,29 +508,67 @@ class _Energy:
         groups = [(silhouettes[int(ci)], np.flatnonzero(self.absent & (cons.camera == ci)))
                   for ci in np.unique(cons.camera[self.absent])]
         self.groups = [(sil, sel, cons.sqrt_info[sel, 0, 0]) for sil, sel in groups]
+        self._last = None  # the last evaluation without the Jacobian (see __call__)
 
     def __call__(self, qc: np.ndarray, jac: bool):
-        ik, nv, present = self.ik, self.ik.model.nv, self.present
-        c, Jc = ik.centroids(qc, self.cons, jac, self.layout)
-        e = np.where(present[:, None], c - self.target, 0.0)
+        ik, lay = self.ik, self.layout
+        last, self._last = self._last, None
+        if jac and last is not None and np.array_equal(last[0], qc):
+            # the solver asks for the Jacobians where it has just evaluated the energy (an accepted
+            # step): the residuals stand (the Jacobians' forward kinematics places the bodies bit
+            # for bit as the plain one does), only the Jacobians are computed
+            return self._with_jacobians(qc, last, False)
+        if len(lay.inv):
+            if jac:
+                pin.computeJointJacobians(ik.model, ik.data, qc)  # also runs the forward kinematics
+            else:
+                pin.forwardKinematics(ik.model, ik.data, qc)
+            pin.updateFramePlacements(ik.model, ik.data)
+            lever, X = ik._anchor_positions(lay)
+            c, z, x, y = ik._project_anchors(X, lay)
+            proj = (lever, z, x, y)
+        else:
+            c, proj = np.zeros((len(self.cons), 2)), None
+        e = np.where(self.present[:, None], c - self.target, 0.0)
         r = np.einsum("nij,nj->ni", self.info, e)  # (n, 2) whitened
-        Jr = np.matmul(self.info, Jc) if jac else None
+        grads = []
         for sil, sel, inv in self.groups:
             d, g = sil.sample(c[sel])
             r[sel, 0], r[sel, 1] = d * inv, 0.0
-            if jac:
-                Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
-                Jr[sel, 1] = 0.0
+            grads.append(g)
         norm = np.sqrt(np.einsum("ni,ni->n", r, r))
         w = np.where(norm > ik.huber, np.sqrt(ik.huber / np.maximum(norm, 1e-12)), 1.0)
         rs = [(r * w[:, None]).ravel()]
-        Js = [(Jr * w[:, None, None]).reshape(-1, nv)] if jac else []
         for p in self.priors:
             d = pin.difference(ik.model, p.q_ref, qc)
             rs.append(d * p.inv_std)
-            if jac:
-                Jd = pin.dDifference(ik.model, p.q_ref, qc, pin.ArgumentPosition.ARG1)
-                Js.append(Jd * p.inv_std[:, None])
         rr = np.concatenate(rs)
         cost = float(rr @ rr)
-        return rr, (np.vstack(Js) if jac else None), cost, e
+        state = (np.array(qc, float), proj, grads, w, rr, cost, e)
+        if not jac:
+            self._last = state
+            return rr, None, cost, e
+        return self._with_jacobians(qc, state, True)
+
+    def _with_jacobians(self, qc: np.ndarray, state: tuple, kinematics_done: bool):
+        """The call's results with the Jacobian ``(m, 17)``, from ``state`` (its residuals and the
+        anchors' lever arms and projections); ``kinematics_done``: the Jacobians' forward pass has run at ``qc``."""
+        ik, nv, lay = self.ik, self.ik.model.nv, self.layout
+        _, proj, grads, w, rr, cost, e = state
+        if proj is None:
+            Jc = np.zeros((len(self.cons), 2, nv))
+        else:
+            if not kinematics_done:
+                pin.computeJointJacobians(ik.model, ik.data, qc)
+                pin.updateFramePlacements(ik.model, ik.data)
+            lever, z, x, y = proj
+            Jc = ik._centroid_jacobians(ik._anchor_jacobians(lay, lever), z, x, y, lay)
+        Jr = np.matmul(self.info, Jc)
+        for (sil, sel, inv), g in zip(self.groups, grads):
+            Jr[sel, 0] = np.einsum("ni,nik->nk", g, Jc[sel]) * inv[:, None]
+            Jr[sel, 1] = 0.0
+        Js = [(Jr * w[:, None, None]).reshape(-1, nv)]
+        for p in self.priors:
+            Jd = pin.dDifference(ik.model, p.q_ref, qc, pin.ArgumentPosition.ARG1)
+            Js.append(Jd * p.inv_std[:, None])
+        return rr, np.vstack(Js), cost, e

@@ -236,6 +236,7 @@ class ShirtTracker:
         self._colour_order = np.argsort(self.model.patch_colour, kind="stable")
         counts = np.array([len(m) for m in self._colour_members])
         self._colour_starts = np.concatenate([[0], np.cumsum(counts)[:-1]]) if np.all(counts > 0) else None
+        self._colour_ends = np.cumsum(counts)
 
     # ------------------------------------------------------------------ helpers
     def _ray_rotation(self, ci: int, uv: np.ndarray) -> np.ndarray:
@@ -659,7 +660,11 @@ class ShirtTracker:
                 # (per map cell, then gathered for the pixels: a minimum commutes with the gather)
                 cells = pdist.cells
                 if self._colour_starts is not None:
-                    cmin = np.minimum.reduceat(cells[self._colour_order], self._colour_starts, axis=0)
+                    # (slices of the patches sorted by colour: np.minimum.reduceat over axis 0 is ten times slower)
+                    by_colour = cells[self._colour_order]
+                    cmin = np.empty((len(self._colour_starts), cells.shape[1]), np.float32)
+                    for k, (a, b) in enumerate(zip(self._colour_starts, self._colour_ends)):
+                        np.minimum.reduce(by_colour[a:b], axis=0, out=cmin[k])
                 else:
                     cmin = np.stack([cells[m].min(axis=0) if m.size else np.full(cells.shape[1:], np.inf, np.float32)
                                      for m in self._colour_members])

@@ -62,6 +62,7 @@ __all__ = [
 
 TINY_SIZE = 40
 _ENC_POOL = 2
+_CACHE_ENCODINGS = 20000  # database entries whose encodings a PoseDatabase keeps (search re-ranks 32 a query)
 FORMAT_VERSION = 2
 _PCA_DIMS = 96
 _MIN_PIXELS = 25
@@ -341,6 +342,21 @@ class PoseDatabase:
     def view_rotation(self, i: np.ndarray) -> np.ndarray:
         return Rotation.from_quat(self.view_quat[np.asarray(i)]).as_matrix()
 
+    def _encodings(self, idx: np.ndarray) -> np.ndarray:
+        """``encode_tiny(self.tiny[idx])``, each entry's encoding kept once computed (an entry's encoding is its own:
+        the same values as encoding the candidates together), up to ``_CACHE_ENCODINGS`` entries."""
+        cache = self.__dict__.setdefault("_encoded", {})
+        todo = [int(i) for i in idx if int(i) not in cache]
+        if todo:
+            if len(cache) + len(todo) > _CACHE_ENCODINGS:
+                cache.clear()
+            for i, row in zip(todo, encode_tiny(self.tiny[todo], self.n_colours)):
+                cache[i] = row
+        out = np.empty((len(idx), self.n_colours * (TINY_SIZE // _ENC_POOL) ** 2), np.float32)
+        for j, i in enumerate(idx):
+            out[j] = cache[int(i)]
+        return out
+
     def search(self, tiny: np.ndarray, k: int = 10, candidates: int = 32, ef_search: int = 64) -> Neighbours:
         """The ``k`` entries nearest to a tiny map ``(40, 40)``: HNSW on the projections, exact re-ranking."""
         K = self.n_colours
@@ -350,7 +366,7 @@ class PoseDatabase:
         self._index.hnsw.efSearch = max(ef_search, candidates)
         _, I = self._index.search(self._project(q, self.pca_mean, self.pca_basis), min(candidates, len(self)))
         cand = I[0][I[0] >= 0]
-        d = np.linalg.norm(encode_tiny(self.tiny[cand], K) - q, axis=1)
+        d = np.linalg.norm(self._encodings(cand) - q, axis=1)
         order = np.argsort(d)[:k]
         idx = cand[order]
         return Neighbours(idx, d[order], self.hinges[idx].astype(float), self.view_rotation(idx),
