@@ -134,11 +134,26 @@ def _without_stray_thin_bits(colour: np.ndarray) -> np.ndarray:
     opened = _without_thin_bits(colour)
     out = colour.copy()
     for k in np.unique(colour[(colour >= 0) & (opened < 0)]):
-        mask = colour == k
+        # within the colour's bounding box (its components lie inside it)
+        x, y, w, h = cv2.boundingRect((colour == k).astype(np.uint8))
+        box = (slice(y, y + h), slice(x, x + w))
+        mask = colour[box] == k
         n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
         thick = np.zeros(n, bool)
-        thick[np.unique(lab[opened == k])] = True
-        out[mask & ~thick[lab]] = -1
+        thick[lab[opened[box] == k]] = True
+        out[box][mask & ~thick[lab]] = -1
+    return out
+
+
+def _edge_padded(a: np.ndarray) -> np.ndarray:
+    """``np.pad(a, 1, mode="edge")`` of a 2-D array (its copies written out: np.pad's overhead is most of its cost here)."""
+    h, w = a.shape
+    out = np.empty((h + 2, w + 2), a.dtype)
+    out[1:-1, 1:-1] = a
+    out[0, 1:-1] = a[0]
+    out[-1, 1:-1] = a[-1]
+    out[:, 0] = out[:, 1]
+    out[:, -1] = out[:, -2]
     return out
 
 
@@ -745,7 +760,7 @@ class ShirtTracker:
                 if ci not in cells:
                     continue
                 base, col = cells[ci]
-                padded = np.pad(rend.colour, 1, mode="edge").ravel()
+                padded = _edge_padded(rend.colour).ravel()
                 match = np.zeros(len(col), bool)
                 for off in offsets:
                     match |= padded[base + off] == col

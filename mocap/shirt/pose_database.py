@@ -95,6 +95,28 @@ class TinyMap:
         return (np.asarray(xy, float) - self.centre + 0.5 * self.side) / self.side * TINY_SIZE - 0.5
 
 
+def _percentiles(v: np.ndarray, percentile: float) -> np.ndarray:
+    """``np.percentile(v, [percentile, 100 - percentile])`` of non-negative integers ``v (n,)``, ``n >= 2``: its "linear" method
+    operation for operation (the same float64 values), without its generic machinery (several times its cost here)."""
+    n = v.size
+    qs = np.true_divide(np.array([percentile, 100 - percentile], float), 100)
+    vi = (n - 1) * qs
+    prev = np.floor(vi)
+    nxt = prev + 1
+    above = vi >= n - 1
+    prev[above] = -1
+    nxt[above] = -1
+    prev, nxt = prev.astype(np.intp), nxt.astype(np.intp)
+    # the order statistics (the values are pixel coordinates: counting them is cheaper than a partition)
+    cum = np.cumsum(np.bincount(v))
+    a, b = (np.searchsorted(cum, np.where(k < 0, k + n, k), side="right").astype(v.dtype) for k in (prev, nxt))
+    t = vi - prev
+    diff = b - a
+    out = np.add(a, diff * t)
+    np.subtract(b, diff * (1 - t), out=out, where=t >= 0.5, casting="unsafe", dtype=type(out.dtype))
+    return out
+
+
 def tiny_id_map(colour: np.ndarray, n_colours: int, margin: float = 1.08, percentile: float = 1.0) -> TinyMap | None:
     """Normalise a colour id map (shirt region of an image, or a render) to 40x40 cells.
 
@@ -119,7 +141,7 @@ def tiny_id_map(colour: np.ndarray, n_colours: int, margin: float = 1.08, percen
     if xs.size < _MIN_PIXELS:
         return None
     # both ends of each axis from one call (one partition of the coordinates, not two)
-    px, py = np.percentile(xs, [percentile, 100 - percentile]), np.percentile(ys, [percentile, 100 - percentile])
+    px, py = _percentiles(xs, percentile), _percentiles(ys, percentile)
     lo = np.array([px[0], py[0]])
     hi = np.array([px[1], py[1]])
     centre = 0.5 * (lo + hi)
