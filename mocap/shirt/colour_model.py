@@ -135,6 +135,28 @@ def _eroded_labels(labels: np.ndarray, n_colours: int, erode_px: int) -> np.ndar
     return out
 
 
+def _medians_by_label(lab: np.ndarray, px: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Per-channel median ``(K, 3)`` of the pixels ``px (n, 3)`` float32 of every label ``lab (n,)`` (``counts`` per
+    label): ``np.median`` of each label's pixels, for all labels at once (one sort per channel).
+
+    The same values as np.median: the middle value, or the float32 mean ``(a + b) / 2`` of the two
+    middle ones (for one middle value that is the value itself).  Labels without pixels give garbage.
+    """
+    px = np.asarray(px, np.float32)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    lo = starts + np.maximum(counts - 1, 0) // 2
+    hi = starts + counts // 2
+    n = len(lab)
+    lo, hi = np.minimum(lo, max(n - 1, 0)), np.minimum(hi, max(n - 1, 0))
+    out = np.zeros((len(counts), 3))
+    if n == 0:
+        return out
+    for c in range(3):
+        v = px[np.lexsort((px[:, c], lab)), c]
+        out[:, c] = np.true_divide(v[lo] + v[hi], 2)
+    return out
+
+
 def labelled_colour_means(image: np.ndarray, labels: np.ndarray, n_colours: int, erode_px: int = 1,
                           min_pixels: int = 8, robust: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Mean linear colour of each labelled colour.
@@ -164,11 +186,7 @@ def labelled_colour_means(image: np.ndarray, labels: np.ndarray, n_colours: int,
     means = np.full((n_colours, 3), np.nan)
     good = counts >= min_pixels
     if robust:
-        order = np.argsort(lab, kind="stable")
-        starts = np.concatenate([[0], np.cumsum(counts)])
-        xs = px[order]
-        for k in np.flatnonzero(good):
-            means[k] = np.median(xs[starts[k]: starts[k + 1]], axis=0)
+        means[good] = _medians_by_label(lab, px, counts)[good]
     else:
         means[good] = sums[good] / counts[good, None]
     return means, counts

@@ -129,13 +129,11 @@ def _rasterise(uv, depth, faces, width, height, cull_back, base, out):  # pragma
         za[f] = ((Z[1] - Z[0]) * (Y[2] - Y[0]) - (Z[2] - Z[0]) * (Y[1] - Y[0])) * w
         zb[f] = ((X[1] - X[0]) * (Z[2] - Z[0]) - (X[2] - X[0]) * (Z[1] - Z[0])) * w
         zc[f] = Z[0] + za[f] * (fxmin - X[0]) + zb[f] * (fymin - Y[0])
-    sel = np.flatnonzero(keep)
-    _zbuffer(tier[sel], nx[sel], ny[sel], xmin[sel], ymin[sel], base[sel], sel.astype(np.int32), ec[sel].astype(np.float32),
-             ea[sel].astype(np.float32), eb[sel].astype(np.float32), ec[sel], ea[sel], eb[sel], zc[sel], za[sel], zb[sel], width, out)
+    _zbuffer(keep, tier, nx, ny, xmin, ymin, base, ec, ea, eb, zc, za, zb, width, out)
 
 
 @numba.njit(cache=True, nogil=True)
-def _zbuffer(tier, nx, ny, xmin, ymin, base_pix, face, ec32, ea32, eb32, ec, ea, eb, zc, za, zb, width, out):  # pragma: no cover
+def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, width, out):  # pragma: no cover
     """The z-buffer of :func:`rasterise_faces`, compiled: a loop over triangles and the pixel centres of their boxes.
 
     Why compiled: the vectorised form spends most of its time building and filtering
@@ -144,22 +142,29 @@ def _zbuffer(tier, nx, ny, xmin, ymin, base_pix, face, ec32, ea32, eb32, ec, ea,
     4 x 4 in float32, larger ones in float64; depth planes in float64) and the same order
     (boxes up to 2 x 2, then up to 4 x 4, then larger; each row by row), so the same
     triangle wins every pixel, ties included (the last one drawn at the least depth).
+
+    It walks the kept triangles of the set-up's arrays in place (their float32 edge
+    functions converted where used), as fast as it gets without copying them out first.
     """
     zbuf = np.full(out.size, np.inf)
     tol32 = np.float32(-1e-6)
     for g in (2, 4, 0):
         for f in range(len(tier)):
-            if tier[f] != g:
+            if not keep[f] or tier[f] != g:
                 continue
             w = nx[f]
             h = ny[f]
+            if g:
+                ec0, ec1, ec2 = np.float32(ec[f, 0]), np.float32(ec[f, 1]), np.float32(ec[f, 2])
+                ea0, ea1, ea2 = np.float32(ea[f, 0]), np.float32(ea[f, 1]), np.float32(ea[f, 2])
+                eb0, eb1, eb2 = np.float32(eb[f, 0]), np.float32(eb[f, 1]), np.float32(eb[f, 2])
             for cy in range(h):
                 for cx in range(w):
                     if g:
                         fx = np.float32(cx)
                         fy = np.float32(cy)
-                        if not (ec32[f, 0] + ea32[f, 0] * fx + eb32[f, 0] * fy >= tol32 and ec32[f, 1] + ea32[f, 1] * fx + eb32[f, 1] * fy >= tol32
-                                and ec32[f, 2] + ea32[f, 2] * fx + eb32[f, 2] * fy >= tol32):
+                        if not (ec0 + ea0 * fx + eb0 * fy >= tol32 and ec1 + ea1 * fx + eb1 * fy >= tol32
+                                and ec2 + ea2 * fx + eb2 * fy >= tol32):
                             continue
                     else:
                         dx = np.float64(cx)
@@ -171,4 +176,4 @@ def _zbuffer(tier, nx, ny, xmin, ymin, base_pix, face, ec32, ea32, eb32, ec, ea,
                     pix = base_pix[f] + (ymin[f] + cy) * width + xmin[f] + cx
                     if z <= zbuf[pix]:
                         zbuf[pix] = z
-                        out[pix] = face[f]
+                        out[pix] = np.int32(f)
