@@ -13,8 +13,9 @@ from mocap.calib.synthetic import look_at
 from mocap.calibration import Calibration, Camera
 from mocap.shirt.classify import distance_to_patches, patch_centroids
 from mocap.shirt.colour_model import ColourModel
+from mocap.shirt.id_maps import reduced_view as _reduced
 from mocap.shirt.ik import IKPriors
-from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker, _reduced
+from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
 from mocap.shirt.settings import CameraObservation
 from mocap.shirt.shirt_model import CropView
 from simbench.pipelines.shirt_database import PoseSampling, build_database

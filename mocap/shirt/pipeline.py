@@ -61,7 +61,11 @@ rendered id map (``distance_reduce``).
 
 Every stage is timed (``FrameEstimate.timings_ms``). The settings, :data:`STAGES` and the
 per-frame output are in :mod:`mocap.shirt.settings`, :func:`initial_white_balance` in
-:mod:`mocap.shirt.colour_model`; all are importable from here too.
+:mod:`mocap.shirt.colour_model`; all are importable from here too.  :class:`ShirtTracker`
+has two parts in modules of their own: step 2b's blend and 6-DoF fit
+(:mod:`mocap.shirt.global_fit`) and the lock-on and recovery hypotheses
+(:mod:`mocap.shirt.hypotheses`); the small operations on id maps the steps share are in
+:mod:`mocap.shirt.id_maps`.
 """
 
 from __future__ import annotations
@@ -73,21 +77,22 @@ import cv2
 import numpy as np
 
 from mocap.calibration import Calibration
-from mocap.distance_transform import exact_distance_transform
 from mocap.errors import MocapInputError
-from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
+from mocap.shirt.arm_search import ArmSearch
 from mocap.shirt.background import BackgroundModel
-from mocap.shirt.classify import (assign_patches, best_reference, classify_gaussian,
-                                  classify_pose_assisted, crop_image, crop_view, foreground_pixels, PatchDistances, patch_distances, other_distance,
-                                  patch_centroids)
+from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
+                                  crop_view, foreground_pixels, other_distance, patch_centroids, patch_distances)
 from mocap.shirt.colour_model import (SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means,
                                      solve_white_balance)
+from mocap.shirt.global_fit import GlobalFit
 from mocap.shirt.histogram_search import search_shirt
-from mocap.shirt.ik import Constraints, IKPriors, ShirtIK, Silhouette
-from mocap.shirt.pose_database import PoseDatabase, blend_poses, blend_weights, tiny_id_map
+from mocap.shirt.hypotheses import TrackerHypotheses
+from mocap.shirt.id_maps import border_band, reduced_view, silhouette, touches_border, without_stray_thin_bits, without_thin_bits
+from mocap.shirt.ik import Constraints, IKPriors, ShirtIK
+from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
 from mocap.shirt.kinematics import UPPER_NQ, UPPER_NV
 from mocap.shirt.settings import STAGES, CameraObservation, FrameEstimate, ShirtPipelineParams
-from mocap.shirt.shirt_model import CropView, ShirtModel, look_at_view
+from mocap.shirt.shirt_model import ShirtModel
 
 __all__ = [
     "STAGES",
@@ -97,84 +102,6 @@ __all__ = [
     "ShirtTracker",
     "initial_white_balance",
 ]
-
-_LEFT_ARM = slice(7 + 3, 7 + 7)  # shoulder_l x y z, elbow_l in q
-_RIGHT_ARM = slice(7 + 7, 7 + 11)
-_ARMS = {"l": _LEFT_ARM, "r": _RIGHT_ARM}
-_CANONICAL_SIZE = 64  # px: orthographic render of the blended pose for the 6-DoF fit
-_CANONICAL_MARGIN = 1.15
-
-
-def _reduced(view: CropView, size: int) -> CropView:
-    """The same square as ``view`` sampled with ``size`` pixels per side."""
-    r = view.size / size
-    return CropView(view.x0 + 0.5 * view.scale * (r - 1.0), view.y0 + 0.5 * view.scale * (r - 1.0), view.scale * r, size)
-
-
-def _without_thin_bits(colour: np.ndarray) -> np.ndarray:
-    """Classified map with structures thinner than 3 pixels removed (morphological opening of the classified mask).
-
-    The query of the pose database frames the shirt by its classified pixels; a rim of
-    mixed colours along the subject's outline or a few stray pixels on the trousers would
-    stretch that frame.  Forearms are several working pixels wide and survive.
-    """
-    mask = (colour >= 0).astype(np.uint8)
-    kept = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
-    return np.where(kept, colour, -1).astype(colour.dtype)
-
-
-def _without_stray_thin_bits(colour: np.ndarray) -> np.ndarray:
-    """Classified map without the pixels of each colour that lie in its connected components (8-connected)
-    thinner than 3 pixels everywhere: those with no pixel that the opening of :func:`_without_thin_bits`
-    (the classified mask, all colours together) keeps.
-
-    A rim of mixed pixels along an outline goes; a limb seen 1-2 pixels wide at its end stays
-    with the thicker part of its colour it joins.
-    """
-    opened = _without_thin_bits(colour)
-    out = colour.copy()
-    for k in np.unique(colour[(colour >= 0) & (opened < 0)]):
-        # within the colour's bounding box (its components lie inside it)
-        x, y, w, h = cv2.boundingRect((colour == k).astype(np.uint8))
-        box = (slice(y, y + h), slice(x, x + w))
-        mask = colour[box] == k
-        n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-        thick = np.zeros(n, bool)
-        thick[lab[opened[box] == k]] = True
-        out[box][mask & ~thick[lab]] = -1
-    return out
-
-
-def _edge_padded(a: np.ndarray) -> np.ndarray:
-    """``np.pad(a, 1, mode="edge")`` of a 2-D array (its copies written out: np.pad's overhead is most of its cost here)."""
-    h, w = a.shape
-    out = np.empty((h + 2, w + 2), a.dtype)
-    out[1:-1, 1:-1] = a
-    out[0, 1:-1] = a[0]
-    out[-1, 1:-1] = a[-1]
-    out[:, 0] = out[:, 1]
-    out[:, -1] = out[:, -2]
-    return out
-
-
-def _border_band(size: int, band: int = 2) -> np.ndarray:
-    """``(size, size)`` bool: the pixels within ``band`` pixels of the crop's edge (those :func:`_touches_border` counts)."""
-    m = np.ones((size, size), bool)
-    m[band:-band, band:-band] = False
-    return m
-
-
-def _touches_border(colour: np.ndarray, band: int = 2, min_pixels: int = 4) -> bool:
-    """Whether at least ``min_pixels`` classified pixels lie within ``band`` pixels of the crop's edge."""
-    c = colour >= 0
-    edge = c[:band].sum() + c[-band:].sum() + c[band:-band, :band].sum() + c[band:-band, -band:].sum()
-    return bool(edge >= min_pixels)
-
-
-def _silhouette(colour: np.ndarray, view: CropView) -> Silhouette:
-    """Distance (image pixels) from every working pixel of a crop to the nearest classified shirt pixel."""
-    dt = exact_distance_transform((colour < 0).astype(np.uint8))
-    return Silhouette(dt * np.float32(view.scale), view.x0, view.y0, view.scale)
 
 
 @dataclass(frozen=True)
@@ -188,7 +115,7 @@ class _Crop:
     other_distances: np.ndarray | None
 
 
-class ShirtTracker:
+class ShirtTracker(GlobalFit, TrackerHypotheses):
     """Runs the pipeline frame after frame for a rig of calibrated cameras.
 
     Parameters
@@ -254,36 +181,6 @@ class ShirtTracker:
         self._colour_ends = np.cumsum(counts)
 
     # ------------------------------------------------------------------ helpers
-    def _ray_rotation(self, ci: int, uv: np.ndarray) -> np.ndarray:
-        """Rows: the ray frame's axes in camera coordinates, z along the ray through pixel ``uv``."""
-        cam = self.cameras[ci]
-        xy = cam.undistort_pixels(np.asarray(uv, float)[None])[0] if np.any(cam.dist != 0) else \
-            np.linalg.solve(cam.K, np.array([uv[0], uv[1], 1.0]))[:2]
-        return look_at_view(np.array([xy[0], xy[1], 1.0]))
-
-    def _canonicals(self, hinges: np.ndarray, view_rotations: list[np.ndarray]) -> list:
-        """Orthographic render of a pose in several views, and per view its tiny square (view metres), anchors and
-        centroids (None where no shirt shows)."""
-        # the root at the origin with identity orientation, then each view's rotation
-        base = self.model.world_vertices(self.kin.make_q(np.eye(3), np.zeros(3), hinges))
-        vvs = [base @ np.asarray(V, float).T for V in view_rotations]
-        ext = [self.model.shirt_extent(vv) for vv in vvs]
-        sides = [sd * _CANONICAL_MARGIN for _, sd in ext]
-        rends = self.model.render_orthographic_views(vvs, [c for c, _ in ext], sides, _CANONICAL_SIZE)
-        out = []
-        for (centre, _), side, rend in zip(ext, sides, rends):
-            tm = tiny_id_map(rend.colour, self.model.n_colours)
-            if tm is None:
-                out.append(None)
-                continue
-            px = side / _CANONICAL_SIZE
-            box_c = centre + (tm.centre + 0.5 - _CANONICAL_SIZE / 2.0) * px
-            box_s = tm.side * px
-            cents, counts = patch_centroids(rend.patch, self.model.n_patches)
-            cents_m = centre + (cents + 0.5 - _CANONICAL_SIZE / 2.0) * px
-            out.append((box_c, box_s, self.model.patch_anchors(rend), cents_m, counts))
-        return out
-
     def _constraints(self, ci: int, targets_px: np.ndarray, ok: np.ndarray, anchors, sqrt_info: np.ndarray,
                      size_px: float, absent: np.ndarray | None = None) -> Constraints:
         """Constraints of camera ``ci`` for the patches that are measured (``ok``) and rendered (have anchors),
@@ -393,111 +290,6 @@ class ShirtTracker:
             est.cameras = []
         return est
 
-    def _loose_priors(self, q_blend: np.ndarray, previous: bool = True) -> list:
-        """The blended pose's prior, and the previous pose's (``previous``, when there is one),
-        loosened by ``recovery_blend_scale`` and ``recovery_motion_scale``."""
-        p = self.params
-        loose = [(q_blend, self.priors.blend_std * p.recovery_blend_scale)]
-        if previous and self.q_prev is not None:
-            loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
-        return loose
-
-    def _loose_solve(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, loose: list, passes: int) -> np.ndarray:
-        """Up to ``passes`` times: split the colours into patches with pose ``q`` and solve from it
-        with the priors ``loose`` and twice the IK iterations; stops when no patch is left. The last pose."""
-        p = self.params
-        for _ in range(passes):
-            cons = self.reassign(q, est.cameras, lin)
-            if not len(cons):
-                break
-            q = self.ik.solve(q, cons, loose, iterations=2 * p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol).q
-        return q
-
-    def _root_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict) -> np.ndarray:
-        """Pose ``q`` and the same pose upright (the world's z up) at ``lock_on_yaws`` headings, each split
-        into patches and solved again with loose priors; the one that agrees best with step 1.
-
-        An addition to seed 001 for locking on: the database here samples the joint ranges
-        uniformly, and for a pose it covers poorly (a T-pose, arms raised) the blend can be
-        turned 80-100 degrees away from the subject (issue 18: shirt_outdoor seed 2 and
-        shirt_tungsten_off seed 11, the first 20 frames); centroid IK does not turn a
-        body that far.  A standing subject is upright, so headings are all that is tried.
-        """
-        p = self.params
-        seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
-        loose = self._loose_priors(est.q_blend, previous=False)
-        starts = [q]
-        for yaw in np.linspace(-np.pi, np.pi, p.lock_on_yaws, endpoint=False):
-            c, s_ = np.cos(yaw), np.sin(yaw)
-            starts.append(self.kin.make_q(np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]), q[:3], q[7:]))
-        solved = [self._loose_solve(q0, est, lin, sil, loose, p.correspondence_passes) for q0 in starts]
-        scores, _ = self._agreement(solved, est.cameras, seen)
-        return solved[int(np.argmax(scores))]
-
-    def _ranked_arms(self, q: np.ndarray, est: FrameEstimate) -> dict:
-        """Per arm (``"l"``, ``"r"``): the ``arm_search_top`` best candidate arms ``(k, 4)`` by
-        :class:`mocap.shirt.arm_search.ArmSearch`, and whether the best beats ``q``'s own arm by
-        ``arm_search_margin``; empty without the arm search."""
-        p = self.params
-        if self._arm_search is None:
-            return {}
-        shots = []
-        for ci, o in enumerate(est.cameras):
-            if o.step1 is None or o.tiny is None:
-                continue
-            shots.append((self.cameras[ci], o.view, colour_distance_maps(o.step1.colour, self._arm_search.colours), float(o.tiny.side)))
-        if not shots:
-            return {}
-        nbs = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
-        out = {}
-        for side, sl in _ARMS.items():
-            extra = np.concatenate([h[:, sl.start - 7: sl.stop - 7] for h in nbs]) if nbs else None
-            sc = self._arm_search.score(q, side, shots, extra)
-            order = np.argsort(sc.scores, kind="stable")[: p.arm_search_top]
-            out[side] = (sc.arms[order], bool(sc.current - sc.scores[order[0]] > p.arm_search_margin))
-        return out
-
-    def _arm_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, ranked: dict,
-                        neighbours: bool = True) -> np.ndarray:
-        """Each arm of pose ``q`` replaced by the arm of every database neighbour, the blend and the previous pose:
-        the best-agreeing arms (or ``q`` itself) are solved again with loose priors and replace ``q`` when the
-        result agrees better.
-
-        An addition to seed 001 for locking on: centroid IK from a far-off start can settle
-        with an arm pointing the wrong way (towards a camera, hidden in front of the
-        torso), where the gate of the patch split drops the pixels of the real arm and the
-        absence constraint is met; the agreement with step 1 still tells the two apart.
-        """
-        p = self.params
-        seen = [ci for ci, o in enumerate(est.cameras) if o.step1 is not None and o.pixels is not None]
-        cands = []
-        if neighbours:
-            cands = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
-            cands += [est.q_blend[None, 7:]] + ([self.q_prev[None, 7:]] if self.q_prev is not None else [])
-        hinges = np.unique(np.concatenate(cands), axis=0) if cands else np.zeros((0, len(q) - 7))
-        score_q = self._agreement([q], est.cameras, seen)[0][0]
-        start = None
-        for side in (_ARMS if neighbours else ranked):
-            sl = _ARMS[side]
-            arms = hinges[:, sl.start - 7: sl.stop - 7]
-            if side in ranked:
-                arms = np.unique(np.concatenate([arms, ranked[side]]), axis=0)
-            if not len(arms):
-                continue
-            trials = np.repeat((q if start is None else start)[None], len(arms), axis=0)
-            trials[:, sl] = arms
-            scores, _ = self._agreement(list(trials), est.cameras, seen)
-            i = int(np.argmax(scores))
-            if scores[i] > score_q + p.hypothesis_margin:
-                start = trials[i]
-        # solved again with loose priors even when no arm won (from q itself): on these
-        # frames the previous pose is suspect, and the loose solve is kept only if it agrees
-        # better (skipping it lowered the CI office run's assisted-correct rate 0.40 -> 0.39)
-        if start is None:
-            start = q
-        res_q = self._loose_solve(start, est, lin, sil, self._loose_priors(est.q_blend), p.correspondence_passes)
-        score = self._agreement([res_q], est.cameras, seen)[0][0]
-        return res_q if score > score_q + p.hypothesis_margin else q
 
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
@@ -506,7 +298,7 @@ class ShirtTracker:
         # classified poorly in a camera (the light changed)
         if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
             cams = [ci for ci, o in enumerate(obs) if o.tiny is not None and lin[ci] is not None]
-            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, p.wb_size)) for ci in cams])
+            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, p.wb_size)) for ci in cams])
             for ci, rend in zip(cams, rends):
                 self._update_white_balance(ci, q, obs[ci], lin[ci], rend)
         self._frames += 1
@@ -606,9 +398,9 @@ class ShirtTracker:
                 # shirt touching the crop's border: a limb reaches out of it (e.g. one the
                 # previous pose lost); look again over a larger square, once.  Only the
                 # border band decides this, and only it is classified here
-                band = _border_band(view.size) if fg is None else _border_band(view.size) & fg
+                band = border_band(view.size) if fg is None else border_band(view.size) & fg
                 probe = classify_gaussian(lin, self.colours, self.W[ci], band, p.gaussian_threshold, None, self.other)
-                if _touches_border(probe.colour, min_pixels=p.crop_growth_min_pixels):
+                if touches_border(probe.colour, min_pixels=p.crop_growth_min_pixels):
                     side = min(side * p.crop_growth, limit)
                     continue
             o.pixels = foreground_pixels(lin, fg)
@@ -635,23 +427,12 @@ class ShirtTracker:
         for ci, o in enumerate(obs):
             if o.step1 is None:
                 continue
-            o.tiny = tiny_id_map(_without_thin_bits(o.step1.colour), self.colours.n_colours)
+            o.tiny = tiny_id_map(without_thin_bits(o.step1.colour), self.colours.n_colours)
             if o.tiny is None:
                 continue
             o.neighbours = self.db.search(o.tiny.ids, self.params.neighbours)
             o.ray_rotation = self._ray_rotation(ci, o.view.to_image(o.tiny.centre))
 
-    def _blend_and_fit(self, obs: list[CameraObservation], seen: list[int]) -> np.ndarray | None:
-        """Step 2b: the neighbours of every camera blended into one pose, its root fitted (6 DoF)."""
-        hs, Rs, ws = [], [], []
-        for ci in seen:
-            nb = obs[ci].neighbours
-            to_world = self.cameras[ci].R.T @ obs[ci].ray_rotation.T
-            hs.append(nb.hinges)
-            Rs.append(np.einsum("ij,njk->nik", to_world, nb.view_rotation))
-            ws.append(blend_weights(nb.distance) / len(seen))
-        hinges_b, R_b, _ = blend_poses(np.concatenate(hs), np.concatenate(Rs), np.concatenate(ws))
-        return self._global_fit(obs, seen, hinges_b, R_b)
 
     def _classify_pose_assisted(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int],
                                 crops: list[_Crop | None]) -> tuple[np.ndarray, Constraints, np.ndarray]:
@@ -691,7 +472,7 @@ class ShirtTracker:
             else:
                 final = o.step1
             o.final = final
-            o.silhouette = _silhouette(final.colour, o.view)
+            o.silhouette = silhouette(final.colour, o.view)
             fractions[ci] = final.classified_fraction
             cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend)
             o.n_constraints = len(cons)
@@ -700,7 +481,7 @@ class ShirtTracker:
 
     def _render_distances(self, q: np.ndarray, ci: int, o: CameraObservation, lin: np.ndarray, fg: np.ndarray | None):
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
-        rend = self.model.render_camera(q, self.cameras[ci], _reduced(o.view, self.params.render_size))
+        rend = self.model.render_camera(q, self.cameras[ci], reduced_view(o.view, self.params.render_size))
         idx = o.pixels[0]
         return rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
 
@@ -725,49 +506,6 @@ class ShirtTracker:
             out[ci] = (rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
         return (self.q_prev if best else q_b), out
 
-    def _agreement(self, poses: list[np.ndarray], obs: list[CameraObservation], seen: list[int]) -> tuple[list[float], list[dict]]:
-        """How well each pose explains the step-1 classification of every camera.
-
-        Agreement: the fraction of classified pixels (over all cameras) that the pose's id
-        map, at the reduced resolution, shows with their colour within one cell.  Step 1
-        does not depend on any pose, so poses are compared on the same evidence.
-
-        Returns the scores and each pose's renders ``{camera: Rendered}``.
-        """
-        r = self.params.render_size
-        # the classified pixels of every camera and their cells in the (edge-padded) render
-        cells = {}
-        for ci in seen:
-            o = obs[ci]
-            idx = o.pixels[0]
-            col = o.step1.colour.ravel()[idx]
-            on = col >= 0
-            if not on.any():
-                continue
-            ys, xs = np.divmod(idx[on], o.view.size)
-            cy = np.minimum((ys * r) // o.view.size, r - 1)
-            cx = np.minimum((xs * r) // o.view.size, r - 1)
-            cells[ci] = ((cy + 1) * (r + 2) + cx + 1, col[on])
-        # the 3x3 neighbourhood as flat offsets in the padded map
-        offsets = (-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3)
-        scores, renders = [], []
-        for q in poses:
-            hit = tot = 0
-            renders.append({})
-            rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, r)) for ci in seen])
-            for ci, rend in zip(seen, rends):
-                renders[-1][ci] = rend
-                if ci not in cells:
-                    continue
-                base, col = cells[ci]
-                padded = _edge_padded(rend.colour).ravel()
-                match = np.zeros(len(col), bool)
-                for off in offsets:
-                    match |= padded[base + off] == col
-                hit += int(match.sum())
-                tot += len(col)
-            scores.append(hit / max(tot, 1))
-        return scores, renders
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: PatchDistances,
                             rend) -> Constraints:
@@ -780,7 +518,7 @@ class ShirtTracker:
             # (once per classification: the passes of a frame split the same one again)
             kept = self._thin_out.get(ci)
             if kept is None or kept[0] is not colour:
-                kept = self._thin_out[ci] = (colour, _without_stray_thin_bits(colour))
+                kept = self._thin_out[ci] = (colour, without_stray_thin_bits(colour))
             colour = kept[1]
         # pdist is in working pixels; the gate is a fraction of the shirt's size
         pm = assign_patches(colour, idx, pdist, self.model.patch_colour, gate=p.patch_gate * o.tiny.side)
@@ -798,7 +536,7 @@ class ShirtTracker:
         """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
         parts = []
         cams = [ci for ci, o in enumerate(obs) if o.final is not None and lin[ci] is not None]
-        rends = self.model.render_cameras(q, [(self.cameras[ci], _reduced(obs[ci].view, self.params.render_size)) for ci in cams])
+        rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, self.params.render_size)) for ci in cams])
         for ci, rend in zip(cams, rends):
             o = obs[ci]
             idx = o.pixels[0]
@@ -810,35 +548,6 @@ class ShirtTracker:
         C = len(self.cameras)
         return FrameEstimate(np.full(UPPER_NQ, np.nan), np.full(UPPER_NQ, np.nan), np.zeros(C), T, obs), Constraints.empty(), lin
 
-    def _global_fit(self, obs: list[CameraObservation], seen: list[int], hinges: np.ndarray, R_world: np.ndarray) -> np.ndarray | None:
-        """Step 2's 6-DoF fit of the blended pose to the query squares of every camera."""
-        p = self.params
-        parts, roots = [], []
-        # root -> ray view of every camera
-        cans = self._canonicals(hinges, [obs[ci].ray_rotation @ self.cameras[ci].R @ R_world for ci in seen])
-        for ci, can in zip(seen, cans):
-            o = obs[ci]
-            cam = self.cameras[ci]
-            if can is None:
-                continue
-            box_c, box_s, anchors, cents_m, counts = can
-            size_px = o.tiny.side * o.view.scale
-            centre_px = o.view.to_image(o.tiny.centre)
-            scale = size_px / box_s  # image px per view metre
-            targets = centre_px + (cents_m - box_c) * scale
-            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-            depth = f / scale
-            root_view = np.array([-box_c[0], -box_c[1], depth])
-            roots.append(cam.R.T @ (o.ray_rotation.T @ root_view - cam.t))
-            info = np.repeat((np.eye(2) / (p.global_fit_std * size_px))[None], self.model.n_patches, axis=0)
-            parts.append(self._constraints(ci, targets, counts >= 2, anchors, info, size_px))
-        if not roots:
-            return None
-        q0 = self.kin.make_q(R_world, np.mean(roots, axis=0), hinges)
-        cons = Constraints.concatenate(parts)
-        if len(cons) < 3:
-            return q0
-        return self.ik.solve(q0, cons, (), active=self._root_active, iterations=p.global_iterations, rel_tol=p.ik_rel_tol).q
 
     def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray, rend) -> None:
         """Step 5: ``W*`` from the colours under the final pose's id map ``rend`` (at ``wb_size``)."""
