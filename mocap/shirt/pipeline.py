@@ -81,7 +81,7 @@ from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
-                                  crop_view, foreground_pixels, other_distance, patch_centroids, patch_distances)
+                                  crop_view, foreground_pixels, other_distance, patch_centroids, patch_distances, row_min)
 from mocap.shirt.colour_model import (SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means,
                                      solve_white_balance)
 from mocap.shirt.global_fit import GlobalFit
@@ -294,17 +294,19 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
         p = self.params
+        self.q_prev = np.asarray(q, float).copy()
+        # the pose's vertices, once for step 5's render and the next crop
+        world = self.model.world_vertices(self.q_prev) if np.all(np.isfinite(self.q_prev)) else None
         # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
         # classified poorly in a camera (the light changed)
         if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
             cams = [ci for ci, o in enumerate(obs) if o.tiny is not None and lin[ci] is not None]
-            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, p.wb_size)) for ci in cams])
+            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, p.wb_size)) for ci in cams], world)
             for ci, rend in zip(cams, rends):
                 self._update_white_balance(ci, q, obs[ci], lin[ci], rend)
         self._frames += 1
-        self.q_prev = np.asarray(q, float).copy()
         # where the shirt of this pose is in every image (the next crop must hold it)
-        P = self.model.shirt_vertices(self.q_prev)
+        P = self.model.shirt_vertices(self.q_prev) if world is None else world[self.model.shirt_vertex_index]
         for ci, cam in enumerate(self.cameras):
             Xc = P @ cam.R.T + cam.t
             ok = Xc[:, 2] > 0.05
@@ -566,7 +568,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         x = small.reshape(-1, 3)[on]
         def agreement(Wm: np.ndarray) -> float:
             D = self.colours.distances(x, Wm)
-            return float(np.mean((D.argmin(axis=1) == lab[on]) & (D.min(axis=1) < p.assisted_threshold)))
+            return float(np.mean((D.argmin(axis=1) == lab[on]) & (row_min(D) < p.assisted_threshold)))
         if agreement(W) + 0.02 < agreement(self.W[ci]):
             return
         self.W[ci] = W

@@ -129,7 +129,7 @@ class ShirtModel:
         shirt = self.face_patch >= 0
         self._shirt_vertex = np.zeros(len(self._verts), bool)
         self._shirt_vertex[np.unique(self.faces[shirt])] = True
-        self._shirt_index = np.flatnonzero(self._shirt_vertex)
+        self.shirt_vertex_index = np.flatnonzero(self._shirt_vertex)  # the shirt's vertices (:meth:`shirt_vertices`)
 
     # ------------------------------------------------------------------ posing
     def world_vertices(self, q: np.ndarray) -> np.ndarray:
@@ -274,7 +274,7 @@ class ShirtModel:
 
     def shirt_extent(self, view_vertices: np.ndarray) -> tuple[np.ndarray, float]:
         """Centre ``(2,)`` and side (m) of the square bounding the shirt's vertices in a view."""
-        xy = view_vertices[self._shirt_index, :2]
+        xy = view_vertices[self.shirt_vertex_index, :2]
         lo, hi = xy.min(axis=0), xy.max(axis=0)
         return 0.5 * (lo + hi), float(np.max(hi - lo))
 
