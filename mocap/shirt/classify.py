@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel
-from mocap.shirt.edt import exact_distances
+from mocap.shirt.edt import exact_distances, not_patch_cells
 from mocap.shirt.shirt_model import CropView
 
 __all__ = [
@@ -231,8 +231,13 @@ class PatchDistances:
         return self.cells[:, self.cell]
 
 
-def patch_distances(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int, reduce: int = 1) -> PatchDistances:
-    """:func:`distance_to_patches` per map cell, with the cell of every query pixel (no ``(P, n)`` array)."""
+def patch_distances(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full_size: int, reduce: int = 1,
+                    cell: np.ndarray | None = None) -> PatchDistances:
+    """:func:`distance_to_patches` per map cell, with the cell of every query pixel (no ``(P, n)`` array).
+
+    ``cell``: the query pixels' cells as a previous result for the same pixels and sizes has them
+    (:attr:`PatchDistances.cell`), when at hand.
+    """
     pm = np.asarray(patch_map)
     r0 = pm.shape[0]
     if reduce > 1:
@@ -241,24 +246,17 @@ def patch_distances(patch_map: np.ndarray, n_patches: int, idx: np.ndarray, full
     else:
         r = r0
     f = full_size / r
-    ys, xs = np.divmod(np.asarray(idx), full_size)
-    cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
+    if cell is None:
+        ys, xs = np.divmod(np.asarray(idx), full_size)
+        cell = (np.minimum((ys / f).astype(np.int64), r - 1) * r + np.minimum((xs / f).astype(np.int64), r - 1))
     present = np.unique(pm[pm >= 0])
     D = np.full((n_patches, r * r), np.inf, np.float32)
     if present.size == 0:
         return PatchDistances(D, cell)
-    # not-this-patch masks of all present patches at once, (m, r, r) uint8
-    other = pm[None] != present[:, None, None]
-    if reduce > 1:
-        # a cell is not the patch if none of its pixels is (strided ANDs: far faster than .all over axes)
-        pooled = other[:, ::reduce, ::reduce].copy()
-        for dy in range(reduce):
-            for dx in range(reduce):
-                if dy or dx:
-                    pooled &= other[:, dy::reduce, dx::reduce]
-        other = pooled
-    # distances per map cell (all patches in one compiled call); the query pixels gather them
-    D[present] = exact_distances(other.view(np.uint8)).reshape(len(present), r * r)
+    # not-this-patch masks of all present patches, (m, r, r) uint8: a cell is not the patch if none of its
+    # reduce x reduce pixels is; then distances per map cell (both compiled, all patches in one call)
+    other = not_patch_cells(pm, np.ascontiguousarray(present, np.int64), reduce)
+    D[present] = exact_distances(other).reshape(len(present), r * r)
     D[present] *= np.float32(f)
     return PatchDistances(D, cell)
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from mocap.distance_transform import exact_distance_transform
 
-__all__ = ["exact_distances"]
+__all__ = ["exact_distances", "not_patch_cells"]
 
 
 def exact_distances(not_target: np.ndarray) -> np.ndarray:
@@ -97,3 +97,25 @@ def _exact_distances(masks, out):  # pragma: no cover
                 if u == t[q]:
                     q -= 1
     return empty
+
+
+@numba.njit(cache=True, nogil=True)
+def not_patch_cells(patch_map, patches, reduce):  # pragma: no cover
+    """``(m, r, r)`` uint8, ``r = side // reduce``: 1 where none of a cell's ``reduce x reduce`` pixels of
+    ``patch_map (side, side)`` int is patch ``patches[i]`` (m,), 0 where one is (the masks step 3 transforms).
+    Pixels of patches not in ``patches`` are ignored."""
+    m = patches.shape[0]
+    r = patch_map.shape[0] // reduce
+    top = 0
+    for i in range(m):
+        top = max(top, patches[i] + 1)
+    slot = np.full(top, -1, np.int64)
+    for i in range(m):
+        slot[patches[i]] = i
+    out = np.ones((m, r, r), np.uint8)
+    for y in range(r * reduce):
+        for x in range(r * reduce):
+            p = patch_map[y, x]
+            if p >= 0 and p < top and slot[p] >= 0:
+                out[slot[p], y // reduce, x // reduce] = 0
+    return out

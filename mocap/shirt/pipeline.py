@@ -171,6 +171,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
         self._frames = 0  # frames finished
         self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
+        self._cells: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (foreground pixels, their cells in step 3's maps)
         self._root_active = np.zeros(UPPER_NV, bool)
         self._root_active[:6] = True
         K = colour_model.n_colours
@@ -328,6 +329,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         T = {s: 0.0 for s in STAGES}
         clock = time.perf_counter
         self._thin_out = {}
+        self._cells = {}
         obs = [CameraObservation() for _ in range(C)]
 
         # 0. background subtraction
@@ -485,7 +487,16 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         """Id map of pose ``q`` in camera ``ci``'s crop (reduced) and distances of the foreground pixels to its patches."""
         rend = self.model.render_camera(q, self.cameras[ci], reduced_view(o.view, self.params.render_size))
         idx = o.pixels[0]
-        return rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
+        return rend, idx, self._patch_distances(ci, o, rend)
+
+    def _patch_distances(self, ci: int, o: CameraObservation, rend) -> PatchDistances:
+        """Distances from camera ``ci``'s foreground pixels to the patches of the id map ``rend`` (the pixels'
+        cells computed once a frame)."""
+        kept = self._cells.get(ci)
+        cell = kept[1] if kept is not None and kept[0] is o.pixels[0] else None
+        pd = patch_distances(rend.patch, self.model.n_patches, o.pixels[0], o.view.size, self.params.distance_reduce, cell)
+        self._cells[ci] = (o.pixels[0], pd.cell)
+        return pd
 
     def _prior_pose(self, q_b: np.ndarray, obs: list[CameraObservation], seen: list[int], lin: list, fgs: list):
         """The pose whose id map steps 3 and 4 use: the blended pose, or the previous frame's when that one agrees
@@ -505,7 +516,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         out = {}
         for ci, rend in renders[best].items():
             idx = obs[ci].pixels[0]
-            out[ci] = (rend, idx, patch_distances(rend.patch, self.model.n_patches, idx, obs[ci].view.size, p.distance_reduce))
+            out[ci] = (rend, idx, self._patch_distances(ci, obs[ci], rend))
         return (self.q_prev if best else q_b), out
 
 
@@ -542,7 +553,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         for ci, rend in zip(cams, rends):
             o = obs[ci]
             idx = o.pixels[0]
-            pdist = patch_distances(rend.patch, self.model.n_patches, idx, o.view.size, self.params.distance_reduce)
+            pdist = self._patch_distances(ci, o, rend)
             parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
         return Constraints.concatenate(parts)
 

@@ -130,6 +130,8 @@ class ShirtModel:
         self._shirt_vertex = np.zeros(len(self._verts), bool)
         self._shirt_vertex[np.unique(self.faces[shirt])] = True
         self.shirt_vertex_index = np.flatnonzero(self._shirt_vertex)  # the shirt's vertices (:meth:`shirt_vertices`)
+        self._patch_of = np.concatenate([[-1], self.face_patch]).astype(np.int16)
+        self._colour_of = np.concatenate([[-1], self.face_colour]).astype(np.int16)
 
     # ------------------------------------------------------------------ posing
     def world_vertices(self, q: np.ndarray) -> np.ndarray:
@@ -153,11 +155,8 @@ class ShirtModel:
 
     # ------------------------------------------------------------------ rendering
     def _finish(self, face: np.ndarray) -> Rendered:
-        ok = face >= 0
-        f = np.where(ok, face, 0)
-        patch = np.where(ok, self.face_patch[f], -1).astype(np.int16)
-        colour = np.where(ok, self.face_colour[f], -1).astype(np.int16)
-        return Rendered(face, patch, colour)
+        # look-up tables with -1 (no face) in front: patch and colour of ``face + 1``
+        return Rendered(face, self._patch_of[face + 1], self._colour_of[face + 1])
 
     def render_camera(self, q: np.ndarray, camera: Camera, view: CropView, world: np.ndarray | None = None) -> Rendered:
         """Rasterise pose ``q`` as seen by ``camera`` in the crop ``view`` (working pixels).
@@ -199,7 +198,14 @@ class ShirtModel:
         faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
         layer = np.repeat(np.arange(n), T)
         face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
-        return [self._finish(np.where(face[i] >= 0, face[i] - i * T, -1).astype(np.int32)) for i in range(n)]
+        return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
+
+    @staticmethod
+    def _layer_faces(face: np.ndarray, offset: int) -> np.ndarray:
+        """``np.where(face >= 0, face - offset, -1)`` as int32: a layer's face ids back to the mesh's."""
+        out = np.full(face.shape, -1, np.int32)
+        np.subtract(face, offset, out=out, where=face >= 0, casting="unsafe")
+        return out
 
     def view_vertices(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
         """``(V, 3)`` vertices in a view frame for a root at the origin with orientation ``view_rotation``.
@@ -233,7 +239,7 @@ class ShirtModel:
         z = np.concatenate([vv[:, 2] + 100.0 for vv in view_vertices])
         faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
         face = rasterise_faces(uv, z, faces, size, size, face_layer=np.repeat(np.arange(n), T), n_layers=n)
-        return [self._finish(np.where(face[i] >= 0, face[i] - i * T, -1).astype(np.int32)) for i in range(n)]
+        return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
 
     def view_vertices_batch(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
         """``(B, V, 3)`` view-frame vertices of ``B`` poses (see :meth:`view_vertices`)."""
