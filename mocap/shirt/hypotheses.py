@@ -166,7 +166,9 @@ class TrackerHypotheses:
         for q in poses:
             hit = tot = 0
             renders.append({})
-            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, r)) for ci in seen])
+            # (the previous pose's vertices are at hand from its frame)
+            world = self._prev_world if q is self.q_prev else None
+            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, r)) for ci in seen], world)
             for ci, rend in zip(seen, rends):
                 renders[-1][ci] = rend
                 if ci not in cells:

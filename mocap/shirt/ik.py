@@ -318,6 +318,10 @@ class ShirtIK:
         self.cameras = list(cameras)
         self.huber = float(huber)
         self._pinhole = [bool(np.all(c.dist == 0)) for c in self.cameras]
+        if self.cameras:  # every camera's rotation, translation and intrinsics, stacked once
+            self._R = np.stack([c.R for c in self.cameras])
+            self._t = np.stack([np.asarray(c.t, float) for c in self.cameras])
+            self._K = np.stack([c.K for c in self.cameras])
 
     # ------------------------------------------------------------------ model
     def _layout(self, cons: Constraints) -> "_Layout":
@@ -325,9 +329,9 @@ class ShirtIK:
         used, inv = np.unique(cons.anchor_body, return_inverse=True)
         cam = cons.camera[cons.anchor_of]
         A, n = len(cam), len(cons)
-        Rc = np.stack([c.R for c in self.cameras])[cam] if A else np.zeros((0, 3, 3))
-        tc = np.stack([np.asarray(c.t, float) for c in self.cameras])[cam] if A else np.zeros((0, 3))
-        K = np.stack([c.K for c in self.cameras])[cam] if A else np.zeros((0, 3, 3))
+        Rc = self._R[cam] if A else np.zeros((0, 3, 3))
+        tc = self._t[cam] if A else np.zeros((0, 3))
+        K = self._K[cam] if A else np.zeros((0, 3, 3))
         # anchor -> constraint weights: one matrix product replaces np.add.at
         S = np.zeros((n, A))
         S[cons.anchor_of, np.arange(A)] = cons.anchor_weight

@@ -166,6 +166,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             # a fixed generator: the candidate arms are part of the tracker's configuration
             self._arm_search = ArmSearch(self.model, database.hinges, params.arm_search_arms, 6, np.random.default_rng(18))
         self.q_prev: np.ndarray | None = None
+        self._prev_world: np.ndarray | None = None  # the previous pose's vertices (ShirtModel.world_vertices)
         self._prev_box: list[tuple[np.ndarray, np.ndarray] | None] = [None] * C
         self._first_fraction: list[float | None] = [None] * C
         self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
@@ -298,6 +299,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         self.q_prev = np.asarray(q, float).copy()
         # the pose's vertices, once for step 5's render and the next crop
         world = self.model.world_vertices(self.q_prev) if np.all(np.isfinite(self.q_prev)) else None
+        self._prev_world = world
         # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
         # classified poorly in a camera (the light changed)
         if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
