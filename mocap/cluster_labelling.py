@@ -55,6 +55,28 @@ def _turn(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
+def _distance_statistics(xyz: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation ``(M, M)`` m of every marker pair's distance over the trial
+    ``xyz (F, M, 3)`` where both are seen (``ok (F, M)``); the deviation is inf on the diagonal and
+    for pairs seen together too rarely."""
+    step = max(1, len(xyz) // 400)  # a few hundred frames are plenty for the statistics
+    X, okX = xyz[::step], ok[::step]
+    D = np.linalg.norm(X[:, :, None] - X[:, None], axis=3)                # (F', M, M)
+    both = okX[:, :, None] & okX[:, None, :]
+    cnt = both.sum(axis=0)
+    Dz = np.where(both, D, 0.0)
+    mean = Dz.sum(axis=0) / np.maximum(cnt, 1)
+    var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
+    # A pair's distance statistics count once the two were seen together in a fifth of the
+    # frames, or in 20 (enough for a mean and spread): c3d_basket_sprint's ForearmL:Marker4 is
+    # in 25 of its 180 frames, had no model under the fifth alone and was never labelled
+    # (3 of 4 gaps recovered; 4 of 4 with the 20), and Qualisys with gaps seeded in 20 % of
+    # its markers re-labels 22 of 22 gaps rather than 18 (0.64 mm, 0 swaps; 2.6 mm, 1 before).
+    std = np.where(cnt >= max(3, min(len(X) // 5, 20)), np.sqrt(var), np.inf)
+    np.fill_diagonal(std, np.inf)
+    return mean, std
+
+
 class ClusterMarkerModel:
     """Markers predicted from their most rigid neighbours, learned from a labelled trial.
 
@@ -95,21 +117,7 @@ class ClusterMarkerModel:
         self.labels = list(labels)
         self.min_gate_m = min_gate_m
         ok = np.isfinite(xyz).all(axis=2)
-        step = max(1, F // 400)  # a few hundred frames are plenty for the statistics
-        X, okX = xyz[::step], ok[::step]
-        D = np.linalg.norm(X[:, :, None] - X[:, None], axis=3)                # (F', M, M)
-        both = okX[:, :, None] & okX[:, None, :]
-        cnt = both.sum(axis=0)
-        Dz = np.where(both, D, 0.0)
-        mean = Dz.sum(axis=0) / np.maximum(cnt, 1)
-        var = np.where(both, (D - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
-        # A pair's distance statistics count once the two were seen together in a fifth of the
-        # frames, or in 20 (enough for a mean and spread): c3d_basket_sprint's ForearmL:Marker4 is
-        # in 25 of its 180 frames, had no model under the fifth alone and was never labelled
-        # (3 of 4 gaps recovered; 4 of 4 with the 20), and Qualisys with gaps seeded in 20 % of
-        # its markers re-labels 22 of 22 gaps rather than 18 (0.64 mm, 0 swaps; 2.6 mm, 1 before).
-        std = np.where(cnt >= max(3, min(len(X) // 5, 20)), np.sqrt(var), np.inf)
-        np.fill_diagonal(std, np.inf)
+        mean, std = _distance_statistics(xyz, ok)
         # Neighbours: the markers whose distance to the marker varies least, those within
         # ``max_reach_m`` on average first (then the farther ones, then those never seen with it);
         # with ``n_spare``, the ``n_neighbours`` of the first ``n_neighbours + n_spare`` that
