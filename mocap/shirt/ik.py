@@ -342,13 +342,18 @@ class ShirtIK:
 
     def _anchors_world(self, q: np.ndarray, lay: "_Layout", jacobians: bool):
         """World anchors ``(A, 3)`` and their Jacobians ``(A, 3, nv)`` (point velocity, LOCAL_WORLD_ALIGNED)."""
+        r, X = self._place_anchors(q, lay, jacobians)
+        return X, (self._anchor_jacobians(lay, r) if jacobians else None)
+
+    def _place_anchors(self, q: np.ndarray, lay: "_Layout", jacobians: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The forward kinematics at ``q`` (with the joint Jacobians if ``jacobians``), then
+        :meth:`_anchor_positions`: each anchor's lever ``(A, 3)`` and world position ``(A, 3)``."""
         if jacobians:
             pin.computeJointJacobians(self.model, self.data, q)  # also runs the forward kinematics
         else:
             pin.forwardKinematics(self.model, self.data, q)
         pin.updateFramePlacements(self.model, self.data)
-        r, X = self._anchor_positions(lay)
-        return X, (self._anchor_jacobians(lay, r) if jacobians else None)
+        return self._anchor_positions(lay)
 
     def _anchor_positions(self, lay: "_Layout") -> tuple[np.ndarray, np.ndarray]:
         """After the forward kinematics: each anchor's offset from its body's origin ``(A, 3)`` (world axes) and its world position."""
@@ -523,12 +528,7 @@ class _Energy:
             # for bit as the plain one does), only the Jacobians are computed
             return self._with_jacobians(qc, last, False)
         if len(lay.inv):
-            if jac:
-                pin.computeJointJacobians(ik.model, ik.data, qc)  # also runs the forward kinematics
-            else:
-                pin.forwardKinematics(ik.model, ik.data, qc)
-            pin.updateFramePlacements(ik.model, ik.data)
-            lever, X = ik._anchor_positions(lay)
+            lever, X = ik._place_anchors(qc, lay, jac)
             c, z, x, y = ik._project_anchors(X, lay)
             proj = (lever, z, x, y)
         else:
