@@ -27,6 +27,7 @@ from mocap.labelling import LabelInit, LabelInitParams, LabelTemplate, Placement
 from mocap.cluster_labelling import ClusterMarkerModel
 from mocap.model_check import error_limit_mm, model_markers, robust_skeleton_fit, view_limits_mm, without_points
 from mocap.model_labelling import ModelLabellingParams, PointLabels, label_points
+from mocap.motion_check import MAX_MARKER_SPEED_MPS, lone_markers, motion_outliers, without_motion_outliers
 from mocap.skeleton_labelling import SkeletonMarkerModel
 from mocap.reassociation import ReassociationParams
 from mocap.reconstruction import ReconstructionParams
@@ -59,7 +60,9 @@ class MarkerPipelineParams:
     (:func:`mocap.free_blob_fill.fill_from_free_blobs`); with ``limb_fill``, limbs the model
     misplaces are then fitted to the free blobs (:func:`mocap.limb_fill.fill_limbs_from_free_blobs`).
     Gaps are filled from the model where the measured markers place the marker within
-    ``model_fill_max_spread_mm`` (for 1 mm marker noise).
+    ``model_fill_max_spread_mm`` (for 1 mm marker noise). Before the model check, a marker alone
+    on its body (which the check cannot judge) loses the points it reached faster than
+    ``max_marker_speed_mps`` and did not come back from (:mod:`mocap.motion_check`; 0: off).
 
     ``marker_radius_m``: the markers' radius (a 14 mm sphere: 0.007), 0 if unknown. With it,
     detections that measured their lit limb (the visible-light detector,
@@ -91,8 +94,10 @@ class MarkerPipelineParams:
     model_fill_max_spread_mm: float = 3.0
     swap_repair: SwapRepairParams | None = field(default_factory=SwapRepairParams)
     marker_radius_m: float = 0.0
+    max_marker_speed_mps: float = MAX_MARKER_SPEED_MPS
 
     def __post_init__(self) -> None:
+        require(self.max_marker_speed_mps >= 0, self, "max_marker_speed_mps", "must be >= 0 m/s (0: off)")
         require(self.marker_radius_m >= 0, self, "marker_radius_m", "must be >= 0 m (0: markers' size unknown)")
         require(self.model_check_grow_rounds >= 0, self, "model_check_grow_rounds", "must be >= 0 (0: off)")
         require(self.free_blob_fill_rounds >= 0, self, "free_blob_fill_rounds", "must be >= 0 (0: off)")
@@ -326,8 +331,20 @@ def _check_against_model(passes: CapturePasses, solver, subject, params: MarkerP
     """Refit, remove the points the fitted skeleton cannot explain (mislabelled or ghosts:
     :func:`mocap.model_check.robust_skeleton_fit`), and fill gaps from the skeleton fitted to
     the measured points only: in fast motion a spline across a gap is centimetres off, the
-    model driven by the segment's other markers is not. Returns the last fit."""
-    fit, traj = robust_skeleton_fit(passes.traj, solver, params.model_outlier_mm, params.model_check_rounds,
+    model driven by the segment's other markers is not. Returns the last fit.
+
+    A marker alone on its body is placed by its own point wherever the limb reaches, so the
+    check explains a wrong one; its points no limb could have moved to go first
+    (:mod:`mocap.motion_check`)."""
+    traj = passes.traj
+    if params.max_marker_speed_mps > 0:
+        veto = motion_outliers(traj, lone_markers(subject, list(traj.labels)), params.max_marker_speed_mps)
+        passes.stats["motion_vetoed"] = int(veto.sum())
+        if veto.any():
+            recon = params.reconstruction
+            method = recon.gap_fill if recon.gap_fill != "auto" else ("cubic" if recon.smoothing != "none" else "lsq")
+            traj = without_motion_outliers(traj, veto, recon.max_gap_frames, method, recon.gap_context_frames)
+    fit, traj = robust_skeleton_fit(traj, solver, params.model_outlier_mm, params.model_check_rounds,
                                     params.model_check_max_drops, params.model_check_grow_rounds)
     limits = view_limits_mm(params.model_outlier_mm)
     added = 0
