@@ -30,7 +30,7 @@ def _db(path, scenario: str, runs) -> None:
 
 @pytest.fixture
 def dbs(tmp_path):
-    a, b = tmp_path / "office.duckdb", tmp_path / "outdoor.duckdb"
+    a, b = tmp_path / "office" / "results.duckdb", tmp_path / "outdoor" / "results.duckdb"  # one database a folder
     _db(a, "shirt_office", _OFFICE)
     _db(b, "shirt_outdoor", _OUTDOOR)
     return a, b

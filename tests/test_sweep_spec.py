@@ -153,3 +153,19 @@ def test_cli_dry_run_lists_every_run(tmp_path):
     lines = r.stdout.splitlines()
     assert len(lines) == 24 and all(len(ln.split()[0]) == 16 for ln in lines)
     assert not (tmp_path / "db.duckdb").exists()
+
+
+def test_cli_sweep_refuses_a_database_folder_that_holds_another_database(tmp_path):
+    # The result files next to a database belong to its folder: a second database there would
+    # take in the first one's runs (and it in the second's). One line, exit 2, nothing written.
+    folder = tmp_path / "sweeps"
+    folder.mkdir()
+    first = folder / "office.duckdb"
+    first.write_bytes(b"")  # stands for a database an earlier sweep left there
+    p = _sweep(tmp_path, '[[factors]]\nfield = "seed"\nvalues = [0, 1]\n')
+    r = CliRunner().invoke(app, ["sweep", str(p), "--db", str(folder / "outdoor.duckdb")])
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1
+    assert "outdoor.duckdb" in lines[0] and "office.duckdb" in lines[0] and "its own folder" in lines[0]
+    assert sorted(q.name for q in folder.iterdir()) == ["office.duckdb"]

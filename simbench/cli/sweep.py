@@ -52,10 +52,12 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
           dry_run: bool = typer.Option(False, "--dry-run", help="list the runs and exit")) -> None:
     """Run a grid or random sample of scenarios; record every run in a DuckDB results database."""
     from simbench.scenario import parse_overrides
+    from simbench.sweeps.results_db import ResultsDB
     from simbench.sweeps.sweep import default_db_path, load_sweep, run_sweep
 
     sw = load_sweep(sweep_file, extra_set=parse_overrides(set_))
     db = db or default_db_path(sw)
+    ResultsDB(db)  # refuses a folder that holds another database, before anything is printed or written
     dup = f" ({sw.duplicates} duplicate samples dropped)" if sw.duplicates else ""
     console.print(f"sweep [bold]{escape(sw.name)}[/]: {len(sw.runs)} runs{dup} -> {escape(str(db))}", highlight=False)
     if dry_run:

@@ -37,6 +37,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from simbench.errors import SimbenchInputError
 from simbench.output_dir import pid_alive, remove_stale_partials
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -275,11 +276,30 @@ def _ts(epoch: float) -> datetime | None:
     return datetime.fromtimestamp(epoch, tz=timezone.utc).replace(tzinfo=None) if epoch else None
 
 
+def _require_own_folder(path: Path) -> None:
+    """Refuse a database whose folder holds another one (:class:`SimbenchInputError` naming the fix).
+
+    The per-run files (``results/``, ``frames/``, ``runs/``) belong to the folder, not to a
+    database, and every sweep first ingests the result files its folder holds: two databases
+    in one folder each take in the other's runs. Three shirt seed sweeps given databases in one
+    folder made each database hold all three sweeps, and a seed table over them counted every
+    seed three times."""
+    if not path.parent.is_dir():
+        return
+    others = sorted(p.name for p in path.parent.glob("*.duckdb") if p.name != path.name)
+    if others:
+        raise SimbenchInputError(
+            f"{path}: this folder also holds the results database {', '.join(others)}, and the result files next to "
+            f"a database (results/, frames/, runs/) belong to its folder, so each would take in the other's runs; "
+            f"give each database its own folder, e.g. --db {path.parent / path.stem / 'results.duckdb'}")
+
+
 class ResultsDB:
-    """The DuckDB database of a sweep folder, plus its :class:`ResultStore`."""
+    """The DuckDB database of a sweep folder, plus its :class:`ResultStore` (one database a folder)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
+        _require_own_folder(self.path)
         self.store = ResultStore(self.path.parent)
 
     @contextmanager
