@@ -34,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from numpy.linalg import _umath_linalg
+from numpy.linalg._linalg import _raise_linalgerror_singular
 
 from mocap.errors import MocapInputError, require, require_finite
 from mocap.skeleton_bridge import bridge_fit
@@ -102,6 +104,13 @@ class IKParams:
                               "bridge_std_deg"), positive=False)
 
 
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` for a float64 ``(n, n)`` matrix and ``(n,)`` vector without its
+    argument checks and conversions (the same LAPACK call: the same bits; LinAlgError if singular)."""
+    with np.errstate(call=_raise_linalgerror_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        return _umath_linalg.solve1(a, b, signature="dd->d")
+
+
 def _spread_m(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """``(M,)``: root of the trace of ``J cov J^T`` per marker, ``J (M, 3, nv)``."""
     return np.sqrt(np.clip(np.einsum("mik,kl,mil->m", J, cov, J), 0.0, None))
@@ -155,6 +164,10 @@ class SkeletonSolver:
         self.model = model
         self.data = model.createData()
         self._marker_joint = np.array(marker_joint, dtype=np.intp)  # (M,)
+        # The joints markers hang on, and each marker's index among them (placements fetched
+        # from Pinocchio for these joints only).
+        used, self._marker_joint_index = np.unique(self._marker_joint, return_inverse=True)
+        self._marker_joints_used = [int(j) for j in used]
         self._marker_local = np.array(marker_local).reshape(-1, 3)  # (M, 3) in the joint frame
         self._body_frames = [body_frame[b.name] for b in subject.bodies]
         # support[m, k]: tangent DoF k moves marker m (k is on the path root -> marker's joint).
@@ -234,7 +247,8 @@ class SkeletonSolver:
             pin.computeJointJacobians(self.model, self.data, q)
         else:
             pin.forwardKinematics(self.model, self.data, q)
-        T = self._placements()[self._marker_joint]  # (M, 4, 4)
+        oMi = self.data.oMi.tolist()
+        T = np.array([oMi[j].homogeneous for j in self._marker_joints_used])[self._marker_joint_index]  # (M, 4, 4)
         p = np.einsum("mij,mj->mi", T[:, :3, :3], self._marker_local) + T[:, :3, 3]
         if not with_jacobian:
             return p, None
@@ -276,9 +290,11 @@ class SkeletonSolver:
         q = q0.copy()
         q[7:] = np.clip(q[7:], lo, hi)
 
+        obs_ok = obs[ok]
+
         def evaluate(qc: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
             pos, jac = self._markers_and_jacobian(qc)
-            r = (pos[ok] - obs[ok]).reshape(-1)
+            r = (pos[ok] - obs_ok).reshape(-1)
             reg = qc[7:] - prior
             return float(r @ r + lam2 * (reg @ reg)), r, jac[ok].reshape(-1, nv)
 
@@ -288,6 +304,7 @@ class SkeletonSolver:
             return H
 
         hinge_diag = np.arange(6, nv)
+        diag = np.arange(nv)
         cost, r, Jr = evaluate(q)
         mu = p.initial_damping
         it = 0
@@ -295,10 +312,13 @@ class SkeletonSolver:
             g = Jr.T @ r
             g[6:] += lam2 * (q[7:] - prior)
             H = normal_matrix(Jr)
+            H_diag = H[diag, diag]
             converged = True  # stays True if no damping makes the cost decrease
             for _ in range(12):
-                A = H + mu * np.diag(np.diag(H) + 1e-9)
-                dq = -np.linalg.solve(A, g)
+                # H + mu * diag(diag(H) + 1e-9), adding only to the diagonal
+                A = H.copy()
+                A[diag, diag] = H_diag + mu * (H_diag + 1e-9)
+                dq = -_solve(A, g)
                 # Active set: hinges at a limit whose step points outwards stay there.
                 h = dq[6:]
                 active = ((q[7:] <= lo + 1e-9) & (h < 0)) | ((q[7:] >= hi - 1e-9) & (h > 0))
@@ -306,7 +326,7 @@ class SkeletonSolver:
                     free = np.ones(nv, dtype=bool)
                     free[6:][active] = False
                     dq = np.zeros(nv)
-                    dq[free] = -np.linalg.solve(A[np.ix_(free, free)], g[free])
+                    dq[free] = -_solve(A[np.ix_(free, free)], g[free])
                 q_new = pin.integrate(model, q, dq)
                 q_new[7:] = np.clip(q_new[7:], lo, hi)
                 cost_new, r_new, J_new = evaluate(q_new)
