@@ -257,7 +257,7 @@ class SkeletonSolver:
         S = np.zeros((len(p), 3, 3))
         S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
         S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
-        jac = J[:3] - S @ J[3:]  # (M, 3, nv)
+        jac = J[:3] - (S.reshape(-1, 3) @ J[3:]).reshape(len(p), 3, -1)  # (M, 3, nv): S @ J[3:] as one product
         jac *= self._support[:, None, :]
         return p, jac
 
