@@ -163,9 +163,15 @@ def crowded_views(p2ds: np.ndarray, xyz: np.ndarray, calibration: Calibration, c
     not_self = ~np.eye(M, dtype=bool)
     for c in range(C):
         obs = p2ds[c]
+        ox, oy = obs[..., 0], obs[..., 1]
+        px, py = proj[c][..., 0], proj[c][..., 1]
         with np.errstate(invalid="ignore"):
-            d_obs = np.linalg.norm(obs[:, :, None] - obs[:, None], axis=3)    # (F, M, M)
-            d_proj = np.linalg.norm(obs[:, :, None] - proj[c][:, None], axis=3)
+            # Distances (F, M, M) as np.linalg.norm(..., axis=3) computes them (the same bits)
+            # without its reduction over a length-2 axis.
+            dx, dy = ox[:, :, None] - ox[:, None], oy[:, :, None] - oy[:, None]
+            d_obs = np.sqrt(dx * dx + dy * dy)
+            dx, dy = ox[:, :, None] - px[:, None], oy[:, :, None] - py[:, None]
+            d_proj = np.sqrt(dx * dx + dy * dy)
             near = ((d_obs < crowd_px) | (d_proj < crowd_px)) & not_self
         crowded[c] = near.any(axis=2) & np.isfinite(obs[..., 0])
     return crowded
