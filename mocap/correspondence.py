@@ -290,20 +290,22 @@ def _accept_in_order(order: np.ndarray, xs: list[np.ndarray], views: np.ndarray,
     """Candidates taken greedily in ``order``, each detection used once: their views (a
     view already used is dropped) and whether each is an ambiguous two-view point."""
     C = len(xs)
-    used = [np.zeros(len(x), bool) for x in xs]
+    used = [[False] * len(x) for x in xs]
     accepted: list[np.ndarray] = []
     accepted_amb: list[bool] = []
-    for k in order:
-        a, b = ca[k], cb[k]
-        if used[a][ia[k]] or used[b][ib[k]]:
+    # Python lists: the loop reads single elements, which numpy scalars make slow.
+    ca_l, cb_l, ia_l, ib_l, amb_l, views_l = ca.tolist(), cb.tolist(), ia.tolist(), ib.tolist(), amb.tolist(), views.tolist()
+    for k in order.tolist():
+        a, b = ca_l[k], cb_l[k]
+        if used[a][ia_l[k]] or used[b][ib_l[k]]:
             continue
-        v = views[k].copy()
+        v = list(views_l[k])
         for c in range(C):
             if v[c] >= 0 and used[c][v[c]]:
                 v[c] = -1
         for c in range(C):
             if v[c] >= 0:
                 used[c][v[c]] = True
-        accepted.append(v)
-        accepted_amb.append(bool(amb[k]) and int((v >= 0).sum()) == 2)
+        accepted.append(np.array(v, dtype=views.dtype))
+        accepted_amb.append(bool(amb_l[k]) and sum(1 for x in v if x >= 0) == 2)
     return accepted, accepted_amb

@@ -86,9 +86,10 @@ def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Traj
         z = cam.to_camera(np.nan_to_num(X.reshape(-1, 3))).reshape(F, M, 3)[..., 2]
         expected = np.pi * (f_px * p.marker_radius_m / np.where(z > 0, z, np.nan)) ** 2
         gate = np.where(filled, p.gate_filled_px, p.gate_px) if gate_px is None else np.asarray(gate_px)
+        ok_all = have & np.isfinite(proj).all(axis=2)
         for f in range(F):
             det = detections[c][f]
-            ok = have[f] & np.isfinite(proj[f]).all(axis=1)
+            ok = ok_all[f]
             if not ok.any():
                 continue
             if len(det) == 0:
@@ -96,7 +97,10 @@ def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Traj
                 continue
             labels = np.nonzero(ok)[0]
             new_xy[f, c, labels] = np.nan
-            d = np.linalg.norm(proj[f, labels, None, :] - det.xy[None, :, :], axis=2)
+            # np.linalg.norm(proj[f, labels, None, :] - det.xy[None, :, :], axis=2), the same bits
+            pl, dxy = proj[f, labels], det.xy
+            dx, dy = pl[:, None, 0] - dxy[None, :, 0], pl[:, None, 1] - dxy[None, :, 1]
+            d = np.sqrt(dx * dx + dy * dy)
             allowed = d <= gate[f, labels, None]
             if not allowed.any():
                 continue
