@@ -291,12 +291,19 @@ class SkeletonSolver:
         q[7:] = np.clip(q[7:], lo, hi)
 
         obs_ok = obs[ok]
+        all_ok = bool(ok.all())  # then no row selection (the same values without the copies)
+        lo_tol, hi_tol = lo + 1e-9, hi - 1e-9
 
         def evaluate(qc: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
             pos, jac = self._markers_and_jacobian(qc)
-            r = (pos[ok] - obs_ok).reshape(-1)
+            if all_ok:
+                r = (pos - obs_ok).reshape(-1)
+                Jr = jac.reshape(-1, nv)
+            else:
+                r = (pos[ok] - obs_ok).reshape(-1)
+                Jr = jac[ok].reshape(-1, nv)
             reg = qc[7:] - prior
-            return float(r @ r + lam2 * (reg @ reg)), r, jac[ok].reshape(-1, nv)
+            return float(r @ r + lam2 * (reg @ reg)), r, Jr
 
         def normal_matrix(J: np.ndarray) -> np.ndarray:
             H = J.T @ J
@@ -313,6 +320,7 @@ class SkeletonSolver:
             g[6:] += lam2 * (q[7:] - prior)
             H = normal_matrix(Jr)
             H_diag = H[diag, diag]
+            at_lo, at_hi = q[7:] <= lo_tol, q[7:] >= hi_tol
             converged = True  # stays True if no damping makes the cost decrease
             for _ in range(12):
                 # H + mu * diag(diag(H) + 1e-9), adding only to the diagonal
@@ -321,17 +329,18 @@ class SkeletonSolver:
                 dq = -_solve(A, g)
                 # Active set: hinges at a limit whose step points outwards stay there.
                 h = dq[6:]
-                active = ((q[7:] <= lo + 1e-9) & (h < 0)) | ((q[7:] >= hi - 1e-9) & (h > 0))
+                active = (at_lo & (h < 0)) | (at_hi & (h > 0))
                 if active.any():
                     free = np.ones(nv, dtype=bool)
                     free[6:][active] = False
+                    fi = np.flatnonzero(free)
                     dq = np.zeros(nv)
-                    dq[free] = -_solve(A[np.ix_(free, free)], g[free])
+                    dq[fi] = -_solve(A[fi[:, None], fi], g[fi])
                 q_new = pin.integrate(model, q, dq)
                 q_new[7:] = np.clip(q_new[7:], lo, hi)
                 cost_new, r_new, J_new = evaluate(q_new)
                 if cost_new < cost:
-                    converged = cost - cost_new <= 1e-9 * cost or float(np.linalg.norm(dq)) < p.step_tolerance
+                    converged = cost - cost_new <= 1e-9 * cost or float(np.sqrt(dq.dot(dq))) < p.step_tolerance
                     q, r, Jr, cost = q_new, r_new, J_new, cost_new
                     mu = max(mu / 3.0, 1e-12)
                     break
