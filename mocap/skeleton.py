@@ -234,14 +234,17 @@ class SkeletonSolver:
         """World poses ``(nj, 4, 4)`` of every joint frame (after a kinematics pass)."""
         return np.array([m.homogeneous for m in self.data.oMi])
 
-    def _markers_and_jacobian(self, q: np.ndarray, with_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def _markers_and_jacobian(self, q: np.ndarray, with_jacobian: bool = True,
+                              rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """Marker positions ``(M, 3)`` m and their Jacobians ``(M, 3, nv)`` m per tangent unit.
 
         One ``computeJointJacobians`` pass gives every joint column in the WORLD frame
         (spatial velocity at the world origin, ``[v; w]``); the linear velocity of a point ``p``
         is ``v + w x p``, restricted to the DoFs on the marker's path to the root. This equals
         ``getFrameJacobian(..., LOCAL_WORLD_ALIGNED)[:3]`` of each marker frame (tested), for
-        all markers at once instead of one Python call per marker.
+        all markers at once instead of one Python call per marker. With ``rows`` (marker
+        indices), the Jacobian ``(len(rows), 3, nv)`` of those markers only (the positions are
+        all the markers').
         """
         if with_jacobian:
             pin.computeJointJacobians(self.model, self.data, q)
@@ -253,12 +256,13 @@ class SkeletonSolver:
         if not with_jacobian:
             return p, None
         J = np.asarray(self.data.J)  # (6, nv)
+        pj, support = (p, self._support) if rows is None else (p[rows], self._support[rows])
         # v + w x p = v - [p]x w, with [p]x the cross-product matrix of each marker.
-        S = np.zeros((len(p), 3, 3))
-        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -p[:, 2], p[:, 1], -p[:, 0]
-        S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = p[:, 2], -p[:, 1], p[:, 0]
-        jac = J[:3] - (S.reshape(-1, 3) @ J[3:]).reshape(len(p), 3, -1)  # (M, 3, nv): S @ J[3:] as one product
-        jac *= self._support[:, None, :]
+        S = np.zeros((len(pj), 3, 3))
+        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -pj[:, 2], pj[:, 1], -pj[:, 0]
+        S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = pj[:, 2], -pj[:, 1], pj[:, 0]
+        jac = J[:3] - (S.reshape(-1, 3) @ J[3:]).reshape(len(pj), 3, -1)  # (M, 3, nv): S @ J[3:] as one product
+        jac *= support[:, None, :]
         return p, jac
 
     def marker_positions(self, q: np.ndarray) -> np.ndarray:
@@ -292,16 +296,17 @@ class SkeletonSolver:
 
         obs_ok = obs[ok]
         all_ok = bool(ok.all())  # then no row selection (the same values without the copies)
+        ok_rows = np.flatnonzero(ok)
         lo_tol, hi_tol = lo + 1e-9, hi - 1e-9
 
         def evaluate(qc: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-            pos, jac = self._markers_and_jacobian(qc)
             if all_ok:
+                pos, jac = self._markers_and_jacobian(qc)
                 r = (pos - obs_ok).reshape(-1)
-                Jr = jac.reshape(-1, nv)
-            else:
+            else:  # the Jacobian of the measured markers only
+                pos, jac = self._markers_and_jacobian(qc, rows=ok_rows)
                 r = (pos[ok] - obs_ok).reshape(-1)
-                Jr = jac[ok].reshape(-1, nv)
+            Jr = jac.reshape(-1, nv)
             reg = qc[7:] - prior
             return float(r @ r + lam2 * (reg @ reg)), r, Jr
 
