@@ -34,8 +34,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-from numpy.linalg import _umath_linalg
-from numpy.linalg._linalg import _raise_linalgerror_singular
 
 from mocap.errors import MocapInputError, require, require_finite
 from mocap.skeleton_bridge import bridge_fit
@@ -102,13 +100,6 @@ class IKParams:
         require(int(self.bridge_max_frames) >= 0, self, "bridge_max_frames", "must be >= 0 (0: never bridge)")
         require_finite(self, ("step_tolerance", "regularization_m_per_rad", "initial_damping", "restart_residual_m", "marker_noise_m",
                               "bridge_std_deg"), positive=False)
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``np.linalg.solve(a, b)`` for a float64 ``(n, n)`` matrix and ``(n,)`` vector without its
-    argument checks and conversions (the same LAPACK call: the same bits; LinAlgError if singular)."""
-    with np.errstate(call=_raise_linalgerror_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
-        return _umath_linalg.solve1(a, b, signature="dd->d")
 
 
 def _spread_m(J: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -331,7 +322,7 @@ class SkeletonSolver:
                 # H + mu * diag(diag(H) + 1e-9), adding only to the diagonal
                 A = H.copy()
                 A[diag, diag] = H_diag + mu * (H_diag + 1e-9)
-                dq = -_solve(A, g)
+                dq = -np.linalg.solve(A, g)
                 # Active set: hinges at a limit whose step points outwards stay there.
                 h = dq[6:]
                 active = (at_lo & (h < 0)) | (at_hi & (h > 0))
@@ -340,7 +331,7 @@ class SkeletonSolver:
                     free[6:][active] = False
                     fi = np.flatnonzero(free)
                     dq = np.zeros(nv)
-                    dq[fi] = -_solve(A[fi[:, None], fi], g[fi])
+                    dq[fi] = -np.linalg.solve(A[fi[:, None], fi], g[fi])
                 q_new = pin.integrate(model, q, dq)
                 q_new[7:] = np.clip(q_new[7:], lo, hi)
                 cost_new, r_new, J_new = evaluate(q_new)
