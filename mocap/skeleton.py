@@ -221,10 +221,6 @@ class SkeletonSolver:
         )
 
     # ------------------------------------------------------------------ kinematics
-    def _placements(self) -> np.ndarray:
-        """World poses ``(nj, 4, 4)`` of every joint frame (after a kinematics pass)."""
-        return np.array([m.homogeneous for m in self.data.oMi])
-
     def _markers_and_jacobian(self, q: np.ndarray, with_jacobian: bool = True,
                               rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """Marker positions ``(M, 3)`` m and their Jacobians ``(M, 3, nv)`` m per tangent unit.
