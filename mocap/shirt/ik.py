@@ -38,6 +38,7 @@ import pinocchio as pin
 
 from mocap.calibration import Camera
 from mocap.errors import InputFileError, MocapInputError
+from mocap.shirt.ik_kernels import anchor_jacobians, huber_rows, place_anchors, project_anchors, projection_jacobians, whitened_errors
 from mocap.shirt.kinematics import ShirtKinematics, UPPER_NV
 
 __all__ = ["Constraints", "Silhouette", "IKPriors", "ShirtIK", "IKResult", "train_priors"]
@@ -359,9 +360,7 @@ class ShirtIK:
         """After the forward kinematics: each anchor's offset from its body's origin ``(A, 3)`` (world axes) and its world position."""
         oMf = self.data.oMf
         H = np.array([oMf[f].homogeneous for f in lay.frames]).reshape(len(lay.frames), 4, 4)
-        R, p = H[:, :3, :3], H[:, :3, 3]
-        r = np.einsum("aij,aj->ai", R[lay.inv], lay.points)
-        return r, r + p[lay.inv]
+        return place_anchors(H, lay.inv, lay.points)
 
     def _anchor_jacobians(self, lay: "_Layout", r: np.ndarray) -> np.ndarray:
         """After :func:`pinocchio.computeJointJacobians`: the anchors' Jacobians ``(A, 3, nv)`` (offsets ``r`` from
@@ -370,22 +369,11 @@ class ShirtIK:
         for i, f in enumerate(lay.frames):
             Jb[i] = pin.getFrameJacobian(self.model, self.data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         # v_point = v_origin + w x r = Jl - [r]x Ja
-        J = Jb[lay.inv]
-        JX = J[:, :3].copy()
-        Ja = J[:, 3:]
-        JX[:, 0] -= r[:, 1, None] * Ja[:, 2] - r[:, 2, None] * Ja[:, 1]
-        JX[:, 1] -= r[:, 2, None] * Ja[:, 0] - r[:, 0, None] * Ja[:, 2]
-        JX[:, 2] -= r[:, 0, None] * Ja[:, 1] - r[:, 1, None] * Ja[:, 0]
-        return JX
+        return anchor_jacobians(Jb, lay.inv, r)
 
     def _project_anchors(self, X: np.ndarray, lay: "_Layout"):
         """Model centroids ``(n, 2)`` px from world anchors ``X (A, 3)``, and the anchors' depths and normalised coordinates."""
-        Xc = np.einsum("aij,aj->ai", lay.Rc, X) + lay.tc
-        z = np.maximum(Xc[:, 2], 1e-3)
-        x, y = Xc[:, 0] / z, Xc[:, 1] / z
-        uv = np.empty((len(z), 2))
-        uv[:, 0] = lay.fx * x + lay.skew * y + lay.c[:, 0]
-        uv[:, 1] = lay.fy * y + lay.c[:, 1]
+        uv, z, x, y = project_anchors(X, lay.Rc, lay.tc, lay.fx, lay.fy, lay.skew, lay.c)
         for ci, sel in lay.distorted:
             cam = self.cameras[ci]
             uv[sel] = cv2.projectPoints(X[sel], cam.rvec, cam.t, cam.K, cam.dist)[0].reshape(-1, 2)
@@ -393,12 +381,7 @@ class ShirtIK:
 
     def _centroid_jacobians(self, JX: np.ndarray, z: np.ndarray, x: np.ndarray, y: np.ndarray, lay: "_Layout") -> np.ndarray:
         """``(n, 2, nv)``: the centroids' Jacobians from the anchors' (:meth:`_anchor_jacobians`) and their projection."""
-        # pinhole derivative (the lens distortion's is left out: it is close to identity)
-        Jp = np.zeros((len(z), 2, 3))
-        Jp[:, 0, 0] = lay.fx / z
-        Jp[:, 0, 2] = -lay.fx * x / z
-        Jp[:, 1, 1] = lay.fy / z
-        Jp[:, 1, 2] = -lay.fy * y / z
+        Jp = projection_jacobians(z, x, y, lay.fx, lay.fy)
         Ja = np.matmul(np.matmul(Jp, lay.Rc), JX)  # (A, 2, nv)
         return (lay.S @ Ja.reshape(len(z), -1)).reshape(lay.S.shape[0], 2, self.model.nv)
 
@@ -533,20 +516,17 @@ class _Energy:
             proj = (lever, z, x, y)
         else:
             c, proj = np.zeros((len(self.cons), 2)), None
-        e = np.where(self.present[:, None], c - self.target, 0.0)
-        r = np.einsum("nij,nj->ni", self.info, e)  # (n, 2) whitened
+        e, r = whitened_errors(c, self.target, self.present, self.info)  # (n, 2) pixel errors, whitened
         grads = []
         for sil, sel, inv in self.groups:
             d, g = sil.sample(c[sel])
             r[sel, 0], r[sel, 1] = d * inv, 0.0
             grads.append(g)
-        norm = np.sqrt(np.einsum("ni,ni->n", r, r))
-        w = np.where(norm > ik.huber, np.sqrt(ik.huber / np.maximum(norm, 1e-12)), 1.0)
-        rs = [(r * w[:, None]).ravel()]
-        for p in self.priors:
-            d = pin.difference(ik.model, p.q_ref, qc)
-            rs.append(d * p.inv_std)
-        rr = np.concatenate(rs)
+        n2, nv = 2 * len(r), ik.model.nv
+        rr = np.empty(n2 + nv * len(self.priors))
+        w = huber_rows(r, ik.huber, rr)
+        for i, p in enumerate(self.priors):
+            np.multiply(pin.difference(ik.model, p.q_ref, qc), p.inv_std, out=rr[n2 + i * nv: n2 + (i + 1) * nv])
         cost = float(rr @ rr)
         state = (np.array(qc, float), proj, grads, w, rr, cost, e)
         if not jac:
