@@ -89,7 +89,6 @@ class ArmSearch:
         pick = rng.choice(len(hinges), size=min(n_arms, len(hinges)), replace=False)
         self.fixed = {s: np.unique(hinges[pick, _ARM_HINGES[s]], axis=0) for s in ARM_SIDES}
         self._points = {}   # side -> (body index in the arm (0 upper, 1 fore), point in body frame (P, 3), colour (P,))
-        self.colours = np.unique(model.patch_colour)
         for s in ARM_SIDES:
             bodies = (names.index(f"upperarm_{s}"), names.index(f"forearm_{s}"))
             part, pts, col = [], [], []
@@ -102,6 +101,9 @@ class ArmSearch:
                     part += [j] * len(sel)
                     col += [int(model.patch_colour[patch])] * len(sel)
             self._points[s] = (np.asarray(part), np.concatenate(pts), np.asarray(col))
+        # the colours the arms' points score against (a distance transform each per camera and
+        # frame): the arms' own, 6 of the shirt's 10
+        self.colours = np.unique(np.concatenate([self._points[s][2] for s in ARM_SIDES]))
         self._bodies = {s: ("thorax", f"upperarm_{s}", f"forearm_{s}") for s in ARM_SIDES}
         self._cache: dict[str, dict[bytes, np.ndarray]] = {s: {} for s in ARM_SIDES}
         self._fixed_rel = {s: self._compute_in_thorax(s, self.fixed[s]) for s in ARM_SIDES}
@@ -147,7 +149,7 @@ class ArmSearch:
         """Scores of the arm ``side`` of pose ``q (18,)`` and of every candidate arm on ``q``'s thorax.
 
         ``shots`` : per camera ``(camera, crop view, distance maps (K, h, w) from
-        :func:`colour_distance_maps` over all colours, shirt size in working pixels)``.
+        :func:`colour_distance_maps` over :attr:`colours`, shirt size in working pixels)``.
         ``extra_arms`` : ``(M, 4)`` more candidates (e.g. the database neighbours of this frame).
         Each point costs its distance in shirt sizes, truncated at ``truncate``; a point
         outside a crop costs ``truncate``.

@@ -132,6 +132,7 @@ class ShirtModel:
         self.shirt_vertex_index = np.flatnonzero(self._shirt_vertex)  # the shirt's vertices (:meth:`shirt_vertices`)
         self._patch_of = np.concatenate([[-1], self.face_patch]).astype(np.int16)
         self._colour_of = np.concatenate([[-1], self.face_colour]).astype(np.int16)
+        self._layers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}  # (_layered)
 
     # ------------------------------------------------------------------ posing
     def world_vertices(self, q: np.ndarray) -> np.ndarray:
@@ -195,10 +196,18 @@ class ShirtModel:
         proj = [self._project(P, c, v) for c, v in shots]
         uv = np.concatenate([u for u, _ in proj])
         z = np.concatenate([d for _, d in proj])
-        faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
-        layer = np.repeat(np.arange(n), T)
+        faces, layer = self._layered(n, V)
         face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
         return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
+
+    def _layered(self, n: int, V: int) -> tuple[np.ndarray, np.ndarray]:
+        """The mesh's faces repeated for ``n`` renders of ``V`` vertices each in one rasteriser call (vertex
+        indices offset by ``V`` per layer) and each face's layer; kept (a few renders a frame, 8144 faces each)."""
+        got = self._layers.get((n, V))
+        if got is None:
+            faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
+            got = self._layers[(n, V)] = (faces, np.repeat(np.arange(n), len(self.faces)))
+        return got
 
     @staticmethod
     def _layer_faces(face: np.ndarray, offset: int) -> np.ndarray:
@@ -237,8 +246,8 @@ class ShirtModel:
         uv = np.concatenate([(vv[:, :2] - np.asarray(c, float)) * (size / float(sd)) + size / 2.0 - 0.5
                              for vv, c, sd in zip(view_vertices, centres_m, sides_m)])
         z = np.concatenate([vv[:, 2] + 100.0 for vv in view_vertices])
-        faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
-        face = rasterise_faces(uv, z, faces, size, size, face_layer=np.repeat(np.arange(n), T), n_layers=n)
+        faces, layer = self._layered(n, V)
+        face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
         return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
 
     def view_vertices_batch(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
