@@ -424,8 +424,11 @@ class ShirtIK:
         lam = damping
         it = 0
         for it in range(1, iterations + 1):
-            q, cost, lam, improved, step_norm, gain = self._damped_step(energy, q, r, J[:, act], cost, act, lam)
+            q, cost, lam, improved, step_norm, gain, e_new = self._damped_step(energy, q, r, J[:, act], cost, act, lam)
             if not improved or step_norm < 1e-6 or gain < rel_tol:
+                break
+            if it == iterations:  # no step follows: the accepted one's errors, without its Jacobian
+                e = e_new
                 break
             r, J, cost, e = energy(q, True)
         e = e[energy.present]
@@ -433,7 +436,7 @@ class ShirtIK:
         return IKResult(q, cost, it, rms)
 
     def _damped_step(self, energy: "_Energy", q: np.ndarray, r: np.ndarray, Ja: np.ndarray, cost: float,
-                     act: np.ndarray, lam: float) -> tuple[np.ndarray, float, float, bool, float, float]:
+                     act: np.ndarray, lam: float) -> tuple[np.ndarray, float, float, bool, float, float, np.ndarray | None]:
         """One Levenberg-Marquardt iteration: up to 6 dampings until the energy falls.
 
         Parameters
@@ -454,6 +457,8 @@ class ShirtIK:
             Norm of the accepted step (NaN if none).
         gain : float
             Relative fall of the energy (NaN if none).
+        e : (n, 2) float or None
+            The pixel errors at the new configuration (None if nothing improved).
         """
         H = Ja.T @ Ja
         g = Ja.T @ r
@@ -468,12 +473,12 @@ class ShirtIK:
             dq = np.zeros(self.model.nv)
             dq[act] = step
             q_new = self.kin.clamp(pin.integrate(self.model, q, dq))
-            _, _, cost_new, _ = energy(q_new, False)
+            _, _, cost_new, e_new = energy(q_new, False)
             if cost_new < cost:
                 gain = (cost - cost_new) / max(cost, 1e-12)
-                return q_new, cost_new, max(lam / 3, 1e-7), True, float(np.linalg.norm(step)), gain
+                return q_new, cost_new, max(lam / 3, 1e-7), True, float(np.linalg.norm(step)), gain, e_new
             lam *= 8
-        return q, cost, lam, False, float("nan"), float("nan")
+        return q, cost, lam, False, float("nan"), float("nan"), None
 
 
 class _Energy:
