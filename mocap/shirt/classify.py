@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from mocap.shirt.colour_model import SRGB_TO_LINEAR, ColourModel
@@ -342,20 +343,47 @@ def assign_patches(colour: np.ndarray, idx: np.ndarray, patch_distance: np.ndarr
         table[k, : len(x)] = x
     out = np.full(colour.size, -1, np.int16)
     c = colour.ravel()[idx]
+    if isinstance(patch_distance, PatchDistances):
+        if c.size and int(c.max()) >= K:
+            raise IndexError(f"assign_patches: colour {int(c.max())} in the map, the patches have {K} colours")
+        # compiled: the numpy form's ten passes over the pixels were most of its cost (the same choices:
+        # the first nearest candidate, the gate compared in float32 as numpy compares it with the distances)
+        _assign_nearest(np.ascontiguousarray(c, np.int64), np.asarray(idx, np.int64), patch_distance.cells,
+                        np.asarray(patch_distance.cell, np.int64), table, np.float32(gate), out)
+        return out.reshape(colour.shape)
     ok = c >= 0
     if not ok.any():
         return out.reshape(colour.shape)
     sel = np.flatnonzero(ok)
     cand = table[c[ok]]  # (n, m)
-    if isinstance(patch_distance, PatchDistances):
-        d = np.where(cand >= 0, patch_distance.cells[np.maximum(cand, 0), patch_distance.cell[sel][:, None]], np.inf)
-    else:
-        d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
+    d = np.where(cand >= 0, patch_distance[np.maximum(cand, 0), sel[:, None]], np.inf)
     j = d.argmin(axis=1)
     r = np.arange(len(sel))
     good = d[r, j] <= gate
     out[idx[sel[good]]] = cand[r, j][good]
     return out.reshape(colour.shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _assign_nearest(c, idx, cells, cell, table, gate, out):  # pragma: no cover
+    """:func:`assign_patches` with :class:`PatchDistances`: each classified pixel ``t`` (colour ``c[t]``, flat index
+    ``idx[t]``, map cell ``cell[t]``) gets the first of its colour's patches ``table[c[t]]`` nearest in ``cells``
+    (``argmin``'s choice; ``inf`` for none) if that distance is within ``gate`` (float32, as the distances)."""
+    m = table.shape[1]
+    for t in range(c.shape[0]):
+        k = c[t]
+        if k < 0:
+            continue
+        best = np.float32(np.inf)
+        bj = 0
+        for j in range(m):
+            p = table[k, j]
+            d = cells[p, cell[t]] if p >= 0 else np.float32(np.inf)
+            if d < best:
+                best = d
+                bj = j
+        if best <= gate:
+            out[idx[t]] = table[k, bj]
 
 
 def patch_centroids(patch_map: np.ndarray, n_patches: int) -> tuple[np.ndarray, np.ndarray]:
