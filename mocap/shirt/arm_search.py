@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from mocap.calibration import Camera
@@ -171,13 +172,29 @@ class ArmSearch:
         total = np.zeros(N)
         for cam, view, dmaps, size in shots:
             uv, z = self.model._project(world.reshape(-1, 3), cam, view)
-            h, w = dmaps.shape[1:]
-            x = np.rint(uv[:, 0]).astype(np.int64)
-            y = np.rint(uv[:, 1]).astype(np.int64)
-            inside = (x >= 0) & (x < w) & (y >= 0) & (y < h) & (z > 0)
-            d = np.full(N * P, truncate)
-            ci = np.tile(col_index, N)
-            d[inside] = np.minimum(dmaps[ci[inside], y[inside], x[inside]] / max(size, 1.0), truncate)
+            # (float32 arithmetic, as numpy's on the float32 maps with Python floats)
+            d = _point_costs(uv, z, col_index, dmaps, np.float32(max(size, 1.0)), np.float32(truncate), float(truncate))
             total += d.reshape(N, P).mean(axis=1)
         total /= max(len(shots), 1)
         return ArmScores(float(total[0]), total[1:], all_arms[1:])
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_costs(uv, z, col_index, dmaps, size, truncate32, truncate):  # pragma: no cover
+    """Each projected point's cost ``(n,)``: at its nearest pixel ``rint(uv)`` inside the map and in front
+    (``z > 0``), ``min(dmaps[colour, y, x] / size, truncate)`` in float32, else ``truncate``; point ``t``
+    has colour ``col_index[t % len(col_index)]`` (the candidates' points in order).  Compiled: the numpy form's
+    passes over all candidates' points were most of :meth:`ArmSearch.score`'s cost."""
+    h, w = dmaps.shape[1], dmaps.shape[2]
+    P = col_index.shape[0]
+    d = np.empty(uv.shape[0])
+    for t in range(uv.shape[0]):
+        x = np.rint(uv[t, 0])
+        y = np.rint(uv[t, 1])
+        # (compared as floats: a NaN or a coordinate beyond int64 is outside, as numpy's cast makes it)
+        if x >= 0 and x < w and y >= 0 and y < h and z[t] > 0:
+            v = dmaps[col_index[t % P], np.int64(y), np.int64(x)] / size
+            d[t] = truncate32 if v > truncate32 else v
+        else:
+            d[t] = truncate
+    return d
