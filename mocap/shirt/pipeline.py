@@ -81,7 +81,8 @@ from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
-                                  crop_view, foreground_pixels, other_distance, patch_centroids, patch_distances, row_min)
+                                  crop_view, foreground_pixels, nearest_colour, other_distance, patch_centroids,
+                                  patch_distances)
 from mocap.shirt.colour_model import (SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means,
                                      solve_white_balance)
 from mocap.shirt.global_fit import GlobalFit
@@ -580,8 +581,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             return
         x = small.reshape(-1, 3)[on]
         def agreement(Wm: np.ndarray) -> float:
-            D = self.colours.distances(x, Wm)
-            return float(np.mean((D.argmin(axis=1) == lab[on]) & (row_min(D) < p.assisted_threshold)))
+            best, score = nearest_colour(self.colours.distances(x, Wm))
+            return float(np.mean((best == lab[on]) & (score < p.assisted_threshold)))
         if agreement(W) + 0.02 < agreement(self.W[ci]):
             return
         self.W[ci] = W
