@@ -419,14 +419,30 @@ def _assign_nearest(c, idx, cells, cell, table, gate, out):  # pragma: no cover
 def patch_centroids(patch_map: np.ndarray, n_patches: int) -> tuple[np.ndarray, np.ndarray]:
     """Centroid ``(P, 2)`` (x, y working pixels; NaN if empty) and pixel count ``(P,)`` of every patch."""
     h, w = patch_map.shape
-    p = patch_map.ravel().astype(np.int64)
-    ok = p >= 0
-    p = p[ok]
-    ys, xs = np.divmod(np.flatnonzero(ok), w)
-    n = np.bincount(p, minlength=n_patches).astype(float)
-    sx = np.bincount(p, weights=xs, minlength=n_patches)
-    sy = np.bincount(p, weights=ys, minlength=n_patches)
+    n, sx, sy = _patch_sums(patch_map.ravel(), w, n_patches)
     with np.errstate(invalid="ignore", divide="ignore"):
         c = np.stack([sx / n, sy / n], axis=1)
     c[n == 0] = np.nan
     return c, n.astype(int)
+
+
+
+@numba.njit(cache=True, nogil=True)
+def _patch_sums(p, w, n_patches):  # pragma: no cover
+    """:func:`patch_centroids`' pixel counts and sums of x and y per patch over a flat map ``p`` of width ``w``,
+    in pixel order (``np.bincount``'s sums, with its length: at least ``n_patches``), compiled."""
+    size = n_patches
+    for i in range(p.shape[0]):
+        if p[i] + 1 > size:
+            size = p[i] + 1
+    n = np.zeros(size)
+    sx = np.zeros(size)
+    sy = np.zeros(size)
+    for i in range(p.shape[0]):
+        v = p[i]
+        if v < 0:
+            continue
+        n[v] += 1.0
+        sx[v] += i % w
+        sy[v] += i // w
+    return n, sx, sy

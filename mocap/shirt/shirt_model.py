@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 
 from mocap.calibration import Camera
@@ -311,19 +312,30 @@ class ShirtModel:
         weight : (A,) float
             Fraction of the patch's pixels that belong to this body (sums to 1 per patch).
         """
-        f = rendered.face.ravel()
-        f = f[f >= 0]
-        p = self.face_patch[f].astype(np.int64)
-        on = p >= 0
-        f, p = f[on], p[on]
-        if f.size == 0:
-            return (np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)), np.zeros(0))
         B = len(self.geometry.body_names)
-        key = p * B + self.face_body[f]
-        n = np.bincount(key, minlength=self.n_patches * B).astype(float)
-        c = self.face_centre_body[f]
-        sums = np.stack([np.bincount(key, weights=c[:, k], minlength=self.n_patches * B) for k in range(3)], axis=1)
+        n, sums = _anchor_sums(rendered.face.ravel(), self.face_patch, self.face_body, self.face_centre_body, B, self.n_patches * B)
         used = np.flatnonzero(n > 0)
+        if used.size == 0:
+            return (np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)), np.zeros(0))
         per_patch = np.bincount(used // B, weights=n[used], minlength=self.n_patches)
         patch = used // B
         return patch, used % B, sums[used] / n[used, None], n[used] / per_patch[patch]
+
+
+
+@numba.njit(cache=True, nogil=True)
+def _anchor_sums(face, face_patch, face_body, centre, B, size):  # pragma: no cover
+    """:meth:`ShirtModel.patch_anchors`' pixel counts ``(size,)`` and sums of face centres ``(size, 3)`` per
+    (patch, body) key ``patch * B + body``, over the pixels in order: the sums of ``np.bincount`` with weights,
+    compiled (its gathers and four counts over the map's pixels were most of the call)."""
+    n = np.zeros(size)
+    sums = np.zeros((size, 3))
+    for i in range(face.shape[0]):
+        f = face[i]
+        if f < 0 or face_patch[f] < 0:
+            continue
+        key = face_patch[f] * B + face_body[f]
+        n[key] += 1.0
+        for k in range(3):
+            sums[key, k] += centre[f, k]
+    return n, sums
