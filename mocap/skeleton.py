@@ -39,6 +39,7 @@ from mocap.errors import MocapInputError, require, require_finite
 from mocap.skeleton_bridge import bridge_fit
 from mocap.skeleton_cold_start import cold_start, cold_start_tables
 from mocap.skeleton_fit import KinematicTree, SkeletonFit, mujoco_from_pinocchio_q
+from mocap.skeleton_memo import FrameMemo
 from mocap.subject import SubjectModel
 from mocap.types import Trajectories
 
@@ -173,6 +174,7 @@ class SkeletonSolver:
         self._hinge_upper = np.asarray(model.upperPositionLimit[7:], dtype=np.float64).copy()
         self.tree = self._kinematic_tree(hinge_names)
         self._cold = cold_start_tables(self)
+        self._memo = FrameMemo()
 
     # ------------------------------------------------------------------ model views
     @property
@@ -411,13 +413,28 @@ class SkeletonSolver:
             if not valid[f]:
                 q_prev = None  # after a gap, start cold again
                 continue
-            q, rms, iters[f], H = self._fit_frame(obs_all[f], finite[f], q_prev)
-            self._record(out, f, q, rms, H, obs_all[f], finite[f])
-            q_prev = q
+            q_prev = self._forward_frame(out, iters, f, obs_all[f], finite[f], q_prev)
         self._solve_backwards(out, iters, valid, obs_all, finite)
         if bridge and p.bridge_max_frames > 0:
             bridge_fit(self, q_out, std, valid, traj.times, obs_all, finite, errors, centres)
         return self._fit(traj, q_out, centres, errors, finite, iters, std, valid)
+
+    def _forward_frame(self, out: tuple, iters: np.ndarray, f: int, obs: np.ndarray, ok: np.ndarray,
+                       q_prev: np.ndarray | None) -> np.ndarray:
+        """Fit frame ``f`` warm-started from ``q_prev`` and store it (``out`` as in :meth:`_record`);
+        returns its solution. A frame whose inputs are bit-identical to this frame's last fit takes
+        that fit's results (:mod:`mocap.skeleton_memo`): the pipeline refits mostly unchanged frames."""
+        key = (self.params, *self._memo.key(obs, ok, q_prev))  # params too: a caller may swap them
+        hit = self._memo.get(f, key)
+        q_out, errors, centres, std, rms_m = out
+        if hit is None:
+            q, rms, iters[f], H = self._fit_frame(obs, ok, q_prev)
+            self._record(out, f, q, rms, H, obs, ok)
+            self._memo.put(f, key, (q, rms, int(iters[f]), errors[f].copy(), centres[f].copy(), std[f].copy()))
+            return q
+        q, rms_m[f], iters[f], errors[f], centres[f], std[f] = hit
+        q_out[f] = q
+        return q
 
     def _record(self, out: tuple, f: int, q: np.ndarray, rms: float, H: np.ndarray, obs: np.ndarray, ok: np.ndarray) -> None:
         """Store frame ``f``'s solution ``q`` in ``out = (q_out, errors, centres, std, rms_m)``."""
