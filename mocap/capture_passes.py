@@ -37,6 +37,40 @@ class CapturePasses:
     traj: Trajectories
     swaps: list = field(default_factory=list)
     stats: dict[str, int] = field(default_factory=dict)
+    # The passes often hand a step the inputs it had before (on the bench's quickstart frames
+    # three of the five reconstructions triangulate exactly the tracks of the one before, and the
+    # last re-association repeats the second); both steps are pure functions of their inputs, so
+    # a bit-identical repeat takes a copy of the earlier result.
+    _reconstructed: _LastCalls = field(default_factory=lambda: _LastCalls(1), repr=False, compare=False)
+    _reassociated: _LastCalls = field(default_factory=lambda: _LastCalls(2), repr=False, compare=False)
+
+    def _reconstruct(self) -> Trajectories:
+        """``reconstruct`` of the measurements (a copy of the last result for the same inputs)."""
+        m = self.measured
+        key = (list(m.labels), list(m.camera_names), dataclasses.replace(self.reconstruction), id(self.calibration))
+        arrays = (m.xy, m.predicted_xy, m.status, self.times)
+        hit = self._reconstructed.get(key, arrays)
+        if hit is not None:
+            return _copied(hit[0])
+        traj = reconstruct(m, self.calibration, self.reconstruction, times=self.times)
+        self._reconstructed.put(key, arrays, (_copied(traj), self.calibration))
+        return traj
+
+    def _reassociate(self, points: np.ndarray | None, gate_px: np.ndarray | None) -> tuple[Tracks2D, dict[str, int]]:
+        """``reassociate`` of the measurements with the detections (a copy of an earlier result
+        for the same inputs)."""
+        m, p = self.measured, self.reassociation
+        key = (list(m.labels), list(m.camera_names), None if p is None else dataclasses.replace(p),
+               id(self.calibration), id(self.detections), points is None, gate_px is None)
+        arrays = (m.xy, self.traj.xyz, self.traj.filled, points, gate_px)
+        hit = self._reassociated.get(key, arrays)
+        if hit is None:
+            # The detections and calibration ride along so that their ids cannot be reused.
+            hit = reassociate(m, self.detections, self.traj, self.calibration, p, points=points, gate_px=gate_px)
+            hit = (hit[0], dict(hit[1]), self.detections, self.calibration)
+            self._reassociated.put(key, arrays, hit)
+        # As reassociate builds it: new measurements, the trackers' estimates and status kept.
+        return Tracks2D(list(m.labels), hit[0].xy.copy(), m.predicted_xy, m.status, list(m.camera_names)), dict(hit[1])
 
     def add_stats(self, stats: dict[str, int], prefix: str = "") -> None:
         for k, v in stats.items():
@@ -66,17 +100,16 @@ class CapturePasses:
         self.measured = Tracks2D(self.measured.labels, xy, self.measured.predicted_xy, self.measured.status,
                                  self.measured.camera_names)
         self.detections = refined
-        self.traj = reconstruct(self.measured, self.calibration, self.reconstruction, times=self.times)
+        self.traj = self._reconstruct()
         self.repair()
 
     def run(self, points: np.ndarray | None = None, gate_px: np.ndarray | None = None, prefix: str = "",
             jumps: bool = True) -> None:
         """One pass: re-associate the detections with the 3D points (the trajectories, or
         ``points`` within ``gate_px``), reconstruct from them, repair swaps."""
-        self.measured, stats = reassociate(self.measured, self.detections, self.traj, self.calibration,
-                                           self.reassociation, points=points, gate_px=gate_px)
+        self.measured, stats = self._reassociate(points, gate_px)
         self.add_stats(stats, prefix)
-        self.traj = reconstruct(self.measured, self.calibration, self.reconstruction, times=self.times)
+        self.traj = self._reconstruct()
         self.repair(jumps)
 
 
@@ -103,6 +136,38 @@ def first_reconstruction(tracks: Tracks2D, detections: list[list[Detections]], c
                            tracks, traj)
     passes.repair()
     return passes
+
+
+class _LastCalls:
+    """The inputs (settings ``key``, copies of ``arrays``) and results of the last ``n`` calls."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.calls: list[tuple] = []
+
+    def get(self, key: tuple, arrays: tuple) -> tuple | None:
+        for k, a, result in self.calls:
+            if k == key and all(_same_bits(x, y) for x, y in zip(a, arrays)):
+                return result
+        return None
+
+    def put(self, key: tuple, arrays: tuple, result: tuple) -> None:
+        copies = tuple(None if x is None else np.array(x, copy=True) for x in arrays)
+        self.calls = [(key, copies, result)] + self.calls[: self.n - 1]
+
+
+def _same_bits(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """``a`` and ``b`` hold the same bits (NaN payloads and the sign of zero included)."""
+    if a is None or b is None:
+        return a is None and b is None
+    a, b = np.asarray(a), np.asarray(b)
+    return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def _copied(traj: Trajectories) -> Trajectories:
+    """``traj`` with its own arrays (the memo's copy stays as reconstructed)."""
+    return Trajectories(list(traj.labels), traj.xyz.copy(), traj.times.copy(), traj.filled.copy(),
+                        traj.residual_px.copy(), traj.n_views.copy())
 
 
 def _repair_swaps(traj: Trajectories, measured: Tracks2D, params: SwapRepairParams | None,
