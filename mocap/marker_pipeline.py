@@ -178,8 +178,9 @@ def capture_from_detections(
     timings = {"detection": detection_ms}
     if params.labelling not in ("model", "tracker"):
         raise MocapInputError(f"labelling={params.labelling!r}: use 'model' or 'tracker'")
+    solvers: dict = {}  # the subject's skeleton solvers, built once per capture (_solver)
     use_model, tracks, init = _labelled_tracks(detections, calibration, template, times, params, rng, subject,
-                                               marker_model, timings)
+                                               marker_model, timings, solvers)
     t0 = time.perf_counter()
     passes = first_reconstruction(tracks, detections, calibration, times, params.reconstruction, params.reassociation,
                                   params.swap_repair, use_model)
@@ -199,7 +200,7 @@ def capture_from_detections(
     fit = None
     if params.solve_skeleton and subject is not None:
         t0 = time.perf_counter()
-        fit = _solve_skeleton(passes, subject, params)
+        fit = _solve_skeleton(passes, subject, params, solvers)
         timings["skeleton"] = (time.perf_counter() - t0) * 1e3
     stats = passes.stats
     stats["swaps_repaired"] = sum(1 for e in passes.swaps if e[0] == "swap")
@@ -271,13 +272,14 @@ def limb_centroids(detections: list[list[Detections]], traj: Trajectories, calib
 
 def _labelled_tracks(detections: list[list[Detections]], calibration: Calibration, template: LabelTemplate,
                      times: np.ndarray, params: MarkerPipelineParams, rng: np.random.Generator, subject,
-                     marker_model: ClusterMarkerModel | None, timings: dict[str, float]) -> tuple[bool, Tracks2D, LabelInit]:
+                     marker_model: ClusterMarkerModel | None, timings: dict[str, float],
+                     solvers: dict) -> tuple[bool, Tracks2D, LabelInit]:
     """``(use_model, tracks, init)``: labels from the subject's model where it can run, else
     seed 000's T-pose first frame kept by 2D trackers (stage times into ``timings``)."""
     # Two cameras cannot confirm a pairing (every two-view point fits its epipolar line), so the
     # model path needs three or more; two-camera rigs use seed 000's scheme.
     if params.labelling == "model" and (subject is not None or marker_model is not None) and len(calibration) >= 3:
-        labelled = _label_with_model(detections, calibration, template, params, subject, marker_model, timings)
+        labelled = _label_with_model(detections, calibration, template, params, subject, marker_model, timings, solvers)
         if labelled is not None:
             tracks, init = labelled
             return True, tracks, init
@@ -293,13 +295,25 @@ def _labelled_tracks(detections: list[list[Detections]], calibration: Calibratio
     return False, tracks, init
 
 
-def _solve_skeleton(passes: CapturePasses, subject, params: MarkerPipelineParams):
+def _solver(subject, solvers: dict):
+    """A :class:`~mocap.skeleton.SkeletonSolver` of ``subject``, kept in ``solvers`` (the capture's):
+    the labeller's and the skeleton stage's share the MJCF (their markers are in other orders), so
+    the second takes the first's cold-start grids, most of the cost of building one (3 ms a frame
+    of the bench's 30)."""
+    from mocap.skeleton import SkeletonSolver
+
+    key = (subject.mjcf_text, tuple(subject.markers))  # markers compare by identity
+    if key not in solvers:
+        same = [v for k, v in solvers.items() if k[0] == subject.mjcf_text]
+        solvers[key] = SkeletonSolver(subject, grids_from=same[0] if same else None)
+    return solvers[key]
+
+
+def _solve_skeleton(passes: CapturePasses, subject, params: MarkerPipelineParams, solvers: dict):
     """Fit the subject's skeleton to the trajectories; with re-association and
     ``model_guided``, let the fit guide two more passes, then check and fill the points
     against it (``passes`` is updated). Returns the fit."""
-    from mocap.skeleton import SkeletonSolver
-
-    solver = SkeletonSolver(subject)
+    solver = _solver(subject, solvers)
     if params.reassociation is None or not params.model_guided:
         return solver.solve(passes.traj)
     # The fits that guide the passes and judge the points keep hinges as solved; only the fit
@@ -436,7 +450,7 @@ def capture_unsynchronised(
 
 def _label_with_model(detections: list[list[Detections]], calibration: Calibration, template: LabelTemplate,
                       params: MarkerPipelineParams, subject, marker_model: ClusterMarkerModel | None,
-                      timings: dict[str, float]) -> tuple[Tracks2D, LabelInit] | None:
+                      timings: dict[str, float], solvers: dict) -> tuple[Tracks2D, LabelInit] | None:
     """Unlabelled 3D points of every frame, labelled by the subject's skeleton (or the marker
     model), as labelled 2D measurements; None when the model finds no confident fit anywhere,
     so that the caller falls back to seed 000's scheme rather than return nothing."""
@@ -446,9 +460,7 @@ def _label_with_model(detections: list[list[Detections]], calibration: Calibrati
     timings["correspondence"] = (time.perf_counter() - t0) * 1e3
     t0 = time.perf_counter()
     if subject is not None:
-        from mocap.skeleton import SkeletonSolver
-
-        model = SkeletonMarkerModel(SkeletonSolver(subject.with_markers([n for n in template.names if n in subject.marker_names])))
+        model = SkeletonMarkerModel(_solver(subject.with_markers([n for n in template.names if n in subject.marker_names]), solvers))
     else:
         model = marker_model
     labels = label_points(frames, model, params.model_labelling)

@@ -115,9 +115,13 @@ class SkeletonSolver:
     ----------
     subject : SubjectModel
     params : IKParams, optional
+    grids_from : SkeletonSolver, optional
+        A solver of the same MJCF (other markers, or in another order) whose cold-start hinge
+        grids this one takes instead of building them (they depend on the joints alone).
     """
 
-    def __init__(self, subject: SubjectModel, params: IKParams | None = None) -> None:
+    def __init__(self, subject: SubjectModel, params: IKParams | None = None,
+                 grids_from: SkeletonSolver | None = None) -> None:
         self.subject = subject
         self.params = params if params is not None else IKParams()
         root = subject.bodies[0]
@@ -173,7 +177,8 @@ class SkeletonSolver:
         self._hinge_lower = np.asarray(model.lowerPositionLimit[7:], dtype=np.float64).copy()
         self._hinge_upper = np.asarray(model.upperPositionLimit[7:], dtype=np.float64).copy()
         self.tree = self._kinematic_tree(hinge_names)
-        self._cold = cold_start_tables(self)
+        same_joints = grids_from is not None and grids_from.subject.mjcf_text == subject.mjcf_text
+        self._cold = cold_start_tables(self, grids_from._cold.grids if same_joints else None)
         self._memo = FrameMemo()
 
     # ------------------------------------------------------------------ model views

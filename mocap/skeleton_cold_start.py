@@ -51,9 +51,26 @@ def place_body(cs: ColdStartTables, b: int, q: np.ndarray, R_w: np.ndarray, t_w:
     t_w[b] = t_b
 
 
-def cold_start_tables(solver) -> ColdStartTables:
+def _hinge_grid(tree, idx: np.ndarray) -> HingeGrid | None:
+    """The grid of the hinges ``idx`` of one body (None without hinges)."""
+    if not len(idx):
+        return None
+    steps = GRID_STEPS[min(len(idx), 3)]
+    lo = np.maximum(tree.lower_rad[idx], -np.pi)
+    hi = np.minimum(tree.upper_rad[idx], np.pi)
+    axes_values = [np.linspace(lo[k], hi[k], steps) for k in range(len(idx))]
+    values = np.stack(np.meshgrid(*axes_values, indexing="ij"), axis=-1).reshape(-1, len(idx))
+    rot = Rotation.identity(len(values))
+    for k, h in enumerate(idx):  # parent-to-child order: R = R_1 R_2 R_3
+        rot = rot * Rotation.from_rotvec(values[:, k : k + 1] * tree.hinge_axes[h])
+    return HingeGrid(values, rot.as_matrix())
+
+
+def cold_start_tables(solver, grids: list[HingeGrid | None] | None = None) -> ColdStartTables:
     """The tables of ``solver`` (a :class:`mocap.skeleton.SkeletonSolver`, which imports this
-    module) for :func:`cold_start`: rest frames, hinge grids, markers per body."""
+    module) for :func:`cold_start`: rest frames, hinge grids, markers per body. ``grids``: the
+    hinge grids of another solver of the same joints, taken as they are (composing the grids'
+    rotations is most of the cost of building a solver: ~0.1 s)."""
     tree = solver.tree
     n_b, M = len(tree.body_names), len(solver.marker_labels)
     q0 = solver.neutral()
@@ -71,24 +88,14 @@ def cold_start_tables(solver) -> ColdStartTables:
         depth[b] = depth[par] + 1
         rest_R[b] = R0[par].T @ R0[b]
         rest_t[b] = R0[par].T @ (t0[b] - t0[par])
-    grids: list[HingeGrid | None] = []
+    new_grids: list[HingeGrid | None] = []
     hinge_index, own, kids, local_in_body, child_origin = [], [], [], [], []
     marker_parent_body = tree.parents[marker_body]
     for b in range(n_b):
         idx = np.flatnonzero(tree.hinge_bodies == b)
         hinge_index.append(idx)
-        if len(idx):
-            steps = GRID_STEPS[min(len(idx), 3)]
-            lo = np.maximum(tree.lower_rad[idx], -np.pi)
-            hi = np.minimum(tree.upper_rad[idx], np.pi)
-            axes_values = [np.linspace(lo[k], hi[k], steps) for k in range(len(idx))]
-            values = np.stack(np.meshgrid(*axes_values, indexing="ij"), axis=-1).reshape(-1, len(idx))
-            rot = Rotation.identity(len(values))
-            for k, h in enumerate(idx):  # parent-to-child order: R = R_1 R_2 R_3
-                rot = rot * Rotation.from_rotvec(values[:, k : k + 1] * tree.hinge_axes[h])
-            grids.append(HingeGrid(values, rot.as_matrix()))
-        else:
-            grids.append(None)
+        if grids is None:
+            new_grids.append(_hinge_grid(tree, idx))
         own.append(marker_body == b)
         kids.append(marker_parent_body == b)
         local_in_body.append((marker_p0 - t0[b]) @ R0[b])
@@ -101,7 +108,7 @@ def cold_start_tables(solver) -> ColdStartTables:
         rest_R=rest_R,
         rest_t=rest_t,
         hinge_slice=hinge_index,
-        grids=grids,
+        grids=new_grids if grids is None else grids,
         own_markers=own,
         child_markers=kids,
         local_in_body=local_in_body,
