@@ -25,7 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mocap.detection.blobs import blobs_with_small, gate, median_u8, noise_std, threshold_level
+from mocap.detection.blobs import Blobs, blobs_with_small, gate, median_u8, noise_std, threshold_level
 from mocap.detection.params import DetectionParams
 from mocap.srgb import SRGB_TO_LINEAR
 from mocap.types import Detections
@@ -48,6 +48,34 @@ def local_background(gray: np.ndarray, cell: int, cells: int) -> np.ndarray:
     return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
 
 
+def grown_pixels(b: Blobs, mask: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels within ``d`` (chessboard distance) of the blobs' pixels in raster order, and
+    for each the largest blob label within ``d``: ``cv2.findNonZero(cv2.dilate(mask, k))`` and
+    ``cv2.dilate(labels, k)`` at those pixels, ``k`` a ``(2d+1)``-square kernel.
+
+    On a marker frame the blobs cover a few hundred pixels, so these are found from the blob
+    pixels themselves (each pixel's neighbours, sorted to raster order, the largest label of
+    each kept), not by two full-image dilations and a full-image scan: the same pixels, in the
+    same order (the centroid sums add in the same order, to the same bits) and with the same
+    labels. Where the blobs cover much of the image, the dilations are cheaper."""
+    h, w = mask.shape
+    k = 2 * d + 1
+    if len(b.px) * k * k > h * w // 16:
+        # cv2.dilate has no int32 support; uint16 is exact below 65536 blobs, float32 beyond.
+        lab_img = cv2.dilate(b.labels.astype(np.uint16 if b.n < 65536 else np.float32), np.ones((k, k), np.uint8))
+        pts = cv2.findNonZero(cv2.dilate(mask, np.ones((k, k), np.uint8))).reshape(-1, 2)
+        return pts[:, 0], pts[:, 1], lab_img[pts[:, 1], pts[:, 0]].astype(np.intp)
+    off = np.arange(-d, d + 1)
+    x = (b.px.astype(np.intp)[None, :] + np.tile(off, k)[:, None]).ravel()
+    y = (b.py.astype(np.intp)[None, :] + np.repeat(off, k)[:, None]).ravel()
+    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    # One sort key: raster index, then label (so a pixel's largest label comes last).
+    v = np.sort((y[inside] * w + x[inside]) * b.n + np.broadcast_to(b.lab, (k * k, len(b.lab))).ravel()[inside])
+    v = v[np.append(v[1:] // b.n != v[:-1] // b.n, True)]
+    key = v // b.n
+    return key % w, key // w, v % b.n
+
+
 def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
                foreground_mask: np.ndarray | None) -> Detections:
     if bg is None:
@@ -62,20 +90,9 @@ def detect_ir(gray: np.ndarray, params: DetectionParams, bg: np.ndarray | None,
     if b is None:
         return Detections.empty()
     n = b.n
-    # Pixels of the blobs grown by dilate_px (their labels by max-dilation of the label
-    # image; inside a blob this is the blob's own label).
-    k = 2 * params.dilate_px + 1
-    kernel = np.ones((k, k), np.uint8)
-    # cv2.dilate has no int32 support; uint16 is exact below 65536 blobs, float32 beyond.
-    lab_img = b.labels.astype(np.uint16 if n < 65536 else np.float32)
-    if params.dilate_px > 0:
-        lab_img = cv2.dilate(lab_img, kernel)
-        grown = cv2.dilate(mask, kernel)
-    else:
-        grown = mask
-    pts = cv2.findNonZero(grown).reshape(-1, 2)
-    px, py = pts[:, 0], pts[:, 1]
-    lab = lab_img[py, px].astype(np.intp)
+    # Pixels of the blobs grown by dilate_px, each with its blob's label (the largest label
+    # within reach, as a max-dilation of the label image gives).
+    px, py, lab = grown_pixels(b, mask, params.dilate_px)
     # Light-weighted centroid (weights: light above the local background).
     if params.response == "srgb":
         wts = np.maximum(SRGB_TO_LINEAR[gray[py, px]] - SRGB_TO_LINEAR[bg_level[py, px]], 0.0)
