@@ -1,0 +1,112 @@
+"""The colour-shirt pipeline's compiled loops give the values of the numpy expressions they replaced (issue 18).
+
+Each kernel claims the same operations in the same order as a numpy form (its docstring
+names it); these compare them on random inputs, bit for bit, edge cases included.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mocap.shirt.arm_search import _point_costs
+from mocap.shirt.classify import PatchDistances, assign_patches, nearest_colour, patch_centroids, row_min
+from mocap.shirt.ik_kernels import huber_rows, place_anchors, project_anchors, whitened_errors
+
+
+def test_nearest_colour_is_argmin_and_row_min_nan_and_signed_zeros_included():
+    rng = np.random.default_rng(0)
+    for t in range(300):
+        n, K = int(rng.integers(1, 200)), int(rng.integers(1, 12))
+        d = np.round(rng.random((n, K)) * 5).astype([np.float32, np.float64][t % 2])  # ties
+        d[rng.random((n, K)) < 0.05] = np.nan
+        d[rng.random((n, K)) < 0.05] = np.inf
+        d[rng.random((n, K)) < 0.1] = -0.0
+        best, score = nearest_colour(d)
+        assert np.array_equal(best, d.argmin(axis=1).astype(np.int16))
+        expected = row_min(d)
+        assert score.dtype == expected.dtype
+        assert np.array_equal(score, expected, equal_nan=True) and np.array_equal(np.signbit(score), np.signbit(expected))
+
+
+def test_assign_patches_per_cell_is_the_per_pixel_form():
+    """The compiled path (PatchDistances) against the numpy path on the same distances per pixel."""
+    rng = np.random.default_rng(1)
+    patch_colour = np.concatenate([np.arange(10), rng.integers(0, 10, 10)])
+    for t in range(200):
+        h = w = int(rng.integers(4, 40))
+        colour = rng.integers(-1, 10, (h, w)).astype(np.int16)
+        idx = np.sort(rng.choice(h * w, int(rng.integers(1, h * w)), replace=False))
+        cells = np.round(rng.random((20, 64)) * 20).astype(np.float32)
+        cells[rng.random(20) < 0.3] = np.inf
+        pd = PatchDistances(cells, rng.integers(0, 64, len(idx)))
+        gate = [np.inf, float(rng.random() * 20), float(np.float32(5.5)) + 1e-9][t % 3]  # the last between float32 values
+        compiled = assign_patches(colour, idx, pd, patch_colour, gate)
+        assert np.array_equal(compiled, assign_patches(colour, idx, pd.pixels(), patch_colour, gate))
+
+
+def test_patch_centroids_are_the_bincount_means():
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        pm = rng.integers(-1, 22, (int(rng.integers(1, 60)), int(rng.integers(1, 60)))).astype(np.int16)
+        c, n = patch_centroids(pm, 20)
+        p = pm.ravel().astype(np.int64)
+        ys, xs = np.divmod(np.flatnonzero(p >= 0), pm.shape[1])
+        cnt = np.bincount(p[p >= 0], minlength=20)
+        assert np.array_equal(n, cnt)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            expect = np.stack([np.bincount(p[p >= 0], weights=v, minlength=20) / cnt for v in (xs, ys)], 1)
+        expect[cnt == 0] = np.nan
+        assert np.array_equal(c, expect, equal_nan=True)
+
+
+def test_arm_point_costs_are_the_numpy_form():
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        h, w = int(rng.integers(5, 100)), int(rng.integers(5, 100))
+        dmaps = (rng.random((6, h, w)) * 100).astype(np.float32)
+        col_index = rng.integers(0, 6, 18)
+        N = int(rng.integers(1, 30))
+        uv = rng.normal(size=(N * 18, 2)) * 60 + 40
+        half = rng.random(N * 18) < 0.2
+        uv[half] = np.floor(uv[half]) + 0.5  # np.rint's ties
+        uv[:3] = [[np.nan, 1.0], [1e30, 2.0], [w - 0.5, 0.0]]
+        z = rng.normal(size=N * 18) + 0.5
+        size, truncate = float(rng.random() * 80 + 0.5), 0.25
+        with np.errstate(invalid="ignore"):
+            x, y = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        inside = (x >= 0) & (x < w) & (y >= 0) & (y < h) & (z > 0)
+        expect = np.full(N * 18, truncate)
+        ci = np.tile(col_index, N)
+        expect[inside] = np.minimum(dmaps[ci[inside], y[inside], x[inside]] / max(size, 1.0), truncate)
+        got = _point_costs(uv, z, col_index, dmaps, np.float32(max(size, 1.0)), np.float32(truncate), truncate)
+        assert np.array_equal(got, expect)
+
+
+def test_ik_kernels_are_the_numpy_expressions():
+    rng = np.random.default_rng(4)
+    for _ in range(100):
+        A, F, n = int(rng.integers(1, 60)), int(rng.integers(1, 8)), int(rng.integers(1, 40))
+        H = rng.normal(size=(F, 4, 4))
+        inv = rng.integers(0, F, A)
+        pts = rng.normal(size=(A, 3)) * 0.1
+        r, X = place_anchors(H, inv, pts)
+        r0 = np.einsum("aij,aj->ai", H[:, :3, :3][inv], pts)
+        assert np.array_equal(r, r0) and np.array_equal(X, r0 + H[:, :3, 3][inv])
+        Rc, tc = rng.normal(size=(A, 3, 3)), rng.normal(size=(A, 3)) + [0, 0, 3]
+        fx, fy, skew, c = rng.random(A) * 500 + 300, rng.random(A) * 500 + 300, rng.random(A), rng.random((A, 2)) * 300
+        uv, z, xx, yy = project_anchors(X, Rc, tc, fx, fy, skew, c)
+        Xc = np.einsum("aij,aj->ai", Rc, X) + tc
+        z0 = np.maximum(Xc[:, 2], 1e-3)
+        x0, y0 = Xc[:, 0] / z0, Xc[:, 1] / z0
+        assert np.array_equal(z, z0) and np.array_equal(xx, x0) and np.array_equal(yy, y0)
+        assert np.array_equal(uv, np.stack([fx * x0 + skew * y0 + c[:, 0], fy * y0 + c[:, 1]], 1))
+        cen, target, info = rng.normal(size=(n, 2)) * 50, rng.normal(size=(n, 2)) * 50, rng.normal(size=(n, 2, 2))
+        present = rng.random(n) < 0.7
+        e, rw = whitened_errors(cen, target, present, info)
+        e0 = np.where(present[:, None], cen - target, 0.0)
+        assert np.array_equal(e, e0) and np.array_equal(rw, np.einsum("nij,nj->ni", info, e0))
+        out = np.empty(2 * n)
+        w = huber_rows(rw, 2.5, out)
+        norm = np.sqrt(np.einsum("ni,ni->n", rw, rw))
+        w0 = np.where(norm > 2.5, np.sqrt(2.5 / np.maximum(norm, 1e-12)), 1.0)
+        assert np.array_equal(w, w0) and np.array_equal(out, (rw * w0[:, None]).ravel())
