@@ -163,7 +163,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
                 for bg, frames in zip(self.backgrounds, empty_frames):
                     bg.learn_empty(frames)
         self._arm_search = None
-        if params.pose_prior and params.arm_search:
+        if params.ik_priors and params.arm_search:
             # a fixed generator: the candidate arms are part of the tracker's configuration
             self._arm_search = ArmSearch(self.model, database.hinges, params.arm_search_arms, 6, np.random.default_rng(18))
         self.q_prev: np.ndarray | None = None
@@ -217,7 +217,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         the recovery of a lost frame, locks on as the second frame of the take did.
         """
         p = self.params
-        if self._frames == 0 and p.pose_prior and p.lock_on_passes > 1:
+        if self._frames == 0 and p.ik_priors and p.lock_on_passes > 1:
             first = self._process(images)
             if not np.all(np.isfinite(first.q)):
                 return first
@@ -240,7 +240,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
 
         # 4. inverse kinematics
         t = time.perf_counter()
-        if p.pose_prior:
+        if p.ik_priors:
             priors = [(q_b, self.priors.blend_std)]
             if self.q_prev is not None:
                 priors.append((self.q_prev, self.priors.motion_std))
@@ -250,7 +250,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         if len(cons):
             res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
                                 silhouettes=sil, rel_tol=p.ik_rel_tol)
-            if (p.pose_prior or p.baseline_previous_start) and self.q_prev is not None and est.q_prior is not self.q_prev:
+            if (p.ik_priors or p.baseline_previous_start) and self.q_prev is not None and est.q_prior is not self.q_prev:
                 # also start from the previous pose (a blend far off can hold the solver in a
                 # local minimum); keep the lower energy.  The baseline does this too: a start
                 # is not a prior term (its energy has none towards the previous pose)
@@ -264,16 +264,16 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
                     res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
                     cons = cons2
             lost = res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px))
-            if p.pose_prior and p.recovery_passes and lost:
+            if p.ik_priors and p.recovery_passes and lost:
                 # the centroids are far from the pose: the previous pose (which the motion prior
                 # holds on to) is probably wrong, e.g. while the tracker is still locking on
                 # from a far-off first blend; loosen that prior and split and solve again
                 q = self._loose_solve(res.q, est, lin, sil, self._loose_priors(q_b), p.recovery_passes)
             else:
                 q = res.q
-            if p.pose_prior and p.lock_on_yaws and self._frames == 0:
+            if p.ik_priors and p.lock_on_yaws and self._frames == 0:
                 q = self._root_hypotheses(q, est, lin, sil)
-            if p.pose_prior and p.arm_hypotheses:
+            if p.ik_priors and p.arm_hypotheses:
                 ranked = self._ranked_arms(q, est)
                 flagged = {side: arms for side, (arms, worse) in ranked.items() if worse}
                 if self._frames == 0 or lost:

@@ -80,7 +80,13 @@ class ShirtPipelineParams:
     neighbours : int
         Database neighbours per camera (10).
     pose_prior : bool
-        Step 3 and the IK's prior terms (off in the baseline).
+        Step 3, the pose-assisted classification: the blended (or previous) pose as a prior on
+        each pixel's colour (off in the baseline, seed 001's "pose prior").
+    ik_priors : bool
+        Step 4's energy terms towards the blended pose and the previous pose, with the lock-on,
+        recovery and arm hypotheses that solve with them (both methods: seed 001 trains their
+        covariances "similarly to Wang and Popovic [WP09]", whose IK has them too; off, the IK is
+        only damped towards the blend by ``baseline_damping_std``).
     adaptive_white_balance : bool
         Step 5 and the reference-illumination search (off in the baseline).
     reference_distance : float
@@ -90,25 +96,25 @@ class ShirtPipelineParams:
     ik_rel_tol : float
         Both stop earlier when an iteration lowers the energy by less than this fraction.
     poor_fit, recovery_passes, recovery_motion_scale, recovery_blend_scale : float, int, float, float
-        Full method: when step 4's centroid RMS exceeds ``poor_fit`` shirt sizes, up to
+        With ``ik_priors`` (both methods): when step 4's centroid RMS exceeds ``poor_fit`` shirt sizes, up to
         ``recovery_passes`` more split-and-solve passes run with the motion prior's
         spread times ``recovery_motion_scale`` and the blend prior's times
         ``recovery_blend_scale`` (an addition: the previous pose is then likely wrong and
         would hold the estimate near it).
     arm_hypotheses : bool
-        Full method, first frame and lost frames: try each arm in the configuration of
+        With ``ik_priors``, first frame and lost frames: try each arm in the configuration of
         every database neighbour, the blend and the previous pose; solve again from the
         arms that agree best with step 1 and keep the result when it agrees better by more
         than ``hypothesis_margin`` (a fraction of the classified pixels).
     lock_on_yaws : int
-        Full method, first frame: the solved pose is also tried upright at this many
+        With ``ik_priors``, first frame: the solved pose is also tried upright at this many
         headings (0: not), each split and solved again, and the one that agrees best with
         step 1 is kept (:meth:`mocap.shirt.pipeline.ShirtTracker._root_hypotheses`).
     lock_on_passes : int
-        Full method: the first frame runs this many times, each from the previous pass's
+        With ``ik_priors``: the first frame runs this many times, each from the previous pass's
         pose (:meth:`mocap.shirt.pipeline.ShirtTracker.process`).
     arm_search, arm_search_arms, arm_search_margin, arm_search_top : bool, int, float, int
-        Full method, every frame: each arm of the solved pose and ``arm_search_arms`` arms
+        With ``ik_priors``, every frame: each arm of the solved pose and ``arm_search_arms`` arms
         of the database (and this frame's neighbours) are scored against step 1 by
         projected sample points (:mod:`mocap.shirt.arm_search`, a few ms); when a candidate
         scores ``arm_search_margin`` shirt sizes better than the pose's own arm, the
@@ -165,6 +171,7 @@ class ShirtPipelineParams:
     prior_c: float = 6.0
     neighbours: int = 10
     pose_prior: bool = True
+    ik_priors: bool = True
     adaptive_white_balance: bool = True
     reference_distance: float = 0.5
     ik_iterations: int = 8
@@ -201,7 +208,7 @@ class ShirtPipelineParams:
         require(not self.crop_factor <= 0, self, "crop_factor", "must be positive", error=MocapInputError)  # (NaN passes, as before)
 
     def baseline(self) -> "ShirtPipelineParams":
-        """The baseline's settings: no pose prior, no adaptive white balance."""
+        """The baseline's settings: no pose prior (step 3), no adaptive white balance (step 5); the rest as the method's."""
         return replace(self, pose_prior=False, adaptive_white_balance=False)
 
 
