@@ -54,7 +54,10 @@ def noise_std(gray: np.ndarray) -> float:
     """
     rows = gray[::4]
     d = cv2.absdiff(rows[:, 1:], rows[:, :-1])
-    hist = np.bincount(d.ravel(), minlength=256).astype(np.float64)
+    # OpenCV's histogram: the same counts as np.bincount (exact in its float32 below 2^24
+    # pixels), without bincount's copy of the image to intp (half of this function's time).
+    hist = (cv2.calcHist([d], [0], None, [256], [0, 256]).ravel() if 0 < d.size < 2**24
+            else np.bincount(d.ravel(), minlength=256)).astype(np.float64)
     q = int(np.searchsorted(np.cumsum(hist), 0.9 * d.size))
     h = hist[: q + 1]
     levels = np.arange(q + 1, dtype=np.float64)
