@@ -12,11 +12,21 @@ import numpy as np
 
 from mocap.model_labelling import kabsch, match_rigid_cluster
 
-__all__ = ["MAX_TURN_RAD", "RigidGroupRules"]
+__all__ = ["MAX_TURN_RAD", "PARTNER_MARGIN", "PARTNER_OUTSIDE", "RigidGroupRules"]
 
 #: A rigid group may take a point from a label outside it only if that turns it less than this
 #: since the previous frame (c3d_racing_propulsion's glove triads turn at most 46 deg a frame).
 MAX_TURN_RAD = np.radians(60.0)
+
+#: A rigid group's labels are taken for wrong where they turn it relative to a partner group by
+#: more than this many times the trial's largest deviation: c3d_racing_propulsion's glove triads
+#: with two labels exchanged turn 1.39-2.34 times it relative to their forearm triad; points 5 mm
+#: off bend a 43 mm triad by about 0.15 times it.
+PARTNER_OUTSIDE = 1.3
+
+#: Without surroundings seen, a labelling within the trial's turn relative to the partner replaces
+#: wrong ones only where every other turns at least this many times more.
+PARTNER_MARGIN = 1.5
 
 
 def _label_orderings(group: np.ndarray, n: int) -> np.ndarray:
@@ -119,6 +129,7 @@ class RigidGroupRules:
                 idx[labels] = pts
         for gi in range(len(self.rigid_groups)):
             idx = self._fit_surroundings(gi, idx, points)
+            idx = self._fit_partners(gi, idx, points)
         return idx
 
     def _fit_surroundings(self, gi: int, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -159,6 +170,69 @@ class RigidGroupRules:
             idx = idx.copy()
             idx[g] = -1
             idx[best[1]] = pts
+        return idx
+
+    def _fit_partners(self, gi: int, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Give a rigid group's points to other labels of it where its labels turn it, relative to a
+        partner group (:meth:`_learn_partners`), clearly beyond anything the trial had
+        (:data:`PARTNER_OUTSIDE` times its largest deviation) and another labelling lies within the
+        trial's: the one whose surroundings fit four times better than any other within, or, with
+        none of the surroundings seen, the one turning :data:`PARTNER_MARGIN` times less than any other.
+
+        Why: motion keeps a group's labels only if they were right before, and a symmetric triad
+        whose points smear for a frame or two (a fast hand, blobs 5 mm off their markers) can come
+        out of it with two labels exchanged, which every later frame then keeps by turning least
+        (c3d_racing_propulsion: the right glove's GloveR2 and GloveR3 in frames 7-24, the left
+        glove's GloveL2 and GloveL3 in frames 67-81). The surroundings do not tell: the right glove's
+        hand marker is unseen there, the left's moves 43 mm RMS in the glove's frame. Relative to
+        the forearm triad, though, the glove turned at most 77-84 deg from its mean over the trial,
+        and with two labels exchanged it turns 1.4-2.3 times that. The labellings of the same points
+        are tried that keep the group's shape within ``shape_tol_m`` of how the present one keeps it
+        (blobs off by 5 mm bend the triad by as much)."""
+        g = self.rigid_groups[gi]
+        have = g[idx[g] >= 0]
+        if len(have) < 3 or not self.group_partners[gi]:
+            return idx
+        pts = idx[have]
+        current = self._partner_deviation(gi, have, pts, idx, points)
+        if current is None or current <= PARTNER_OUTSIDE:
+            return idx
+        q = points[pts]
+        perms = _label_orderings(g, len(have))
+        shape = np.abs(self.mean_dist_m[perms[:, :, None], perms[:, None, :]]
+                       - np.linalg.norm(q[:, None] - q[None], axis=2)).max(axis=(1, 2))
+        own = shape[np.flatnonzero((perms == have).all(axis=1))[0]]
+        ctx, mu, spread = self.group_context[gi]
+        seen = np.flatnonzero(idx[ctx] >= 0) if len(ctx) else np.zeros(0, int)
+        rivals = []  # (deviation, surroundings score, labels) of every other labelling
+        for labels in perms[shape <= own + self.shape_tol_m]:
+            order = np.argsort(labels)
+            dev = self._partner_deviation(gi, labels[order], pts[order], idx, points)
+            if dev is None or np.array_equal(labels, have):
+                continue
+            score = np.inf
+            if len(seen):
+                R, t = kabsch(self.group_local[gi][np.searchsorted(g, labels)], q)
+                loc = (points[idx[ctx[seen]]] - t) @ R
+                score = float(np.mean((np.linalg.norm(loc - mu[seen], axis=1) / spread[seen]) ** 2))
+            rivals.append((dev, score, labels))
+        inside = sorted((r for r in rivals if r[0] <= 1.0), key=lambda r: r[1])
+        if not inside:
+            return idx
+        if len(seen):
+            # Within the trial's turn, a cyclic relabelling too (the glove's hand marker, 100 mm
+            # off the triad's centre, moves 170 mm with it): the surroundings choose.
+            if inside[0][1] > 9.0 or any(r[1] < 4.0 * inside[0][1] for r in inside[1:]):
+                return idx
+            labels = inside[0][2]
+        else:
+            rivals.sort(key=lambda r: r[0])
+            if len(rivals) > 1 and rivals[1][0] < PARTNER_MARGIN * rivals[0][0]:
+                return idx
+            labels = rivals[0][2]
+        idx = idx.copy()
+        idx[have] = -1
+        idx[labels] = pts
         return idx
 
     def reacquire_groups(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
