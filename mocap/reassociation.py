@@ -48,6 +48,22 @@ class ReassociationParams:
     min_good_views: int = 2
 
 
+def _match_within_gate(proj_px: np.ndarray, det_px: np.ndarray, gate_px: np.ndarray,
+                       labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One camera and frame: labels ``(n,)`` at ``proj_px`` ``(n, 2)`` matched one to one to the
+    detections ``det_px`` ``(k, 2)`` within each label's ``gate_px`` ``(n,)`` (Hungarian on the
+    distances); returns the matched labels and detection indices."""
+    # np.linalg.norm(proj_px[:, None, :] - det_px[None, :, :], axis=2), the same bits
+    dx, dy = proj_px[:, None, 0] - det_px[None, :, 0], proj_px[:, None, 1] - det_px[None, :, 1]
+    d = np.sqrt(dx * dx + dy * dy)
+    allowed = d <= gate_px[:, None]
+    if not allowed.any():
+        return labels[:0], np.zeros(0, np.intp)
+    rows, cols = linear_sum_assignment(np.where(allowed, d, 1e6))
+    good = allowed[rows, cols]
+    return labels[rows[good]], cols[good]
+
+
 def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Trajectories,
                 calibration: Calibration, params: ReassociationParams | None = None,
                 points: np.ndarray | None = None, gate_px: np.ndarray | None = None) -> tuple[Tracks2D, dict[str, int]]:
@@ -97,17 +113,7 @@ def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Traj
                 continue
             labels = np.nonzero(ok)[0]
             new_xy[f, c, labels] = np.nan
-            # np.linalg.norm(proj[f, labels, None, :] - det.xy[None, :, :], axis=2), the same bits
-            pl, dxy = proj[f, labels], det.xy
-            dx, dy = pl[:, None, 0] - dxy[None, :, 0], pl[:, None, 1] - dxy[None, :, 1]
-            d = np.sqrt(dx * dx + dy * dy)
-            allowed = d <= gate[f, labels, None]
-            if not allowed.any():
-                continue
-            cost = np.where(allowed, d, 1e6)
-            rows, cols = linear_sum_assignment(cost)
-            good = allowed[rows, cols]
-            m_idx, j_idx = labels[rows[good]], cols[good]
+            m_idx, j_idx = _match_within_gate(proj[f, labels], det.xy, gate[f, labels], labels)
             new_xy[f, c, m_idx] = det.xy[j_idx]
             area_ratio[f, c, m_idx] = det.area[j_idx] / expected[f, m_idx]
     # Blob size relative to the frame's typical ratio (threshold and blur cancel out).

@@ -48,18 +48,16 @@ class ReconstructionParams:
         views that agree best. ``inf`` disables the check.
     max_residual_px : float
         Reprojection residual above which the worst camera is dropped (pixels).
-    refine : bool
-        Gauss-Newton refinement of the DLT points.
-    refine_iterations : int
+    refine, refine_iterations : bool, int
+        Gauss-Newton refinement of the DLT points, and its iterations.
     min_views : int
         Views needed for a point (>= 2).
     coasting_weight : float
         Weight of a tracker's prediction while it coasts (status 2) relative to a measured
         detection (weight 1). 0 (default) uses measured detections only.
     smoothing : {"none", "butterworth", "rts"}
-    cutoff_hz : float
-        Butterworth cut-off (single pass), Hz.
-    butter_order : int
+    cutoff_hz, butter_order : float, int
+        Butterworth cut-off (single pass), Hz, and order.
     rts_accel_std : float
         RTS smoother: white-acceleration std, m/s^2.
     rts_meas_std_m : float
