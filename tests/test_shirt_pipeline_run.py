@@ -130,16 +130,17 @@ def test_full_method_locks_on_and_survives_the_lamp_switched_off_where_the_basel
 
 @pytest.fixture(scope="module")
 def wave_run(tmp_path_factory, shirt_run):
-    """shirt_office with a slow wave (one of seed 001's simple sequences), seed 2, the first second."""
+    """shirt_office with a slow wave (one of seed 001's simple sequences), seed 2, the first 0.7 s."""
     return _run_in_own_cache(tmp_path_factory, "scenarios/shirt_office.toml",
-                             {"duration_s": 1.0, "seed": 2, "motion.clip": "wave_slow"}, "wave", databases_from=shirt_run[2])
+                             {"duration_s": 0.7, "seed": 2, "motion.clip": "wave_slow"}, "wave", databases_from=shirt_run[2])
 
 
 def test_baseline_keeps_the_waving_arm_of_a_simple_sequence(wave_run):
     """Seed 001: on simple sequences without occlusions both methods perform well. The baseline
     is the method without step 3's pose prior and step 5's white balance; with the IK's own prior
     terms (the blend and the previous pose, as in WP09) it keeps the raised left arm that, with
-    plain damping instead, it lost from the 15th frame on (elbow 18 cm, wrist 38 cm off)."""
+    plain damping instead, it lost from the 15th frame on (elbow 18 cm, wrist 38 cm off; over
+    these 21 frames 2.79 cm against the full method's 1.81, both arms within 5 cm on 67 % of them)."""
     m = wave_run[0].metrics
     assert m["shirt.baseline_joint_rmse_cm"] < 1.5 * m["shirt.joint_rmse_cm"]
-    assert m["shirt.baseline_joint_rmse_cm"] < 5.0
+    assert m["shirt.baseline_arms_within_5cm_fraction"] >= 0.95
