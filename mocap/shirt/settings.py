@@ -147,8 +147,8 @@ class ShirtPipelineParams:
     global_fit_std : float
         Assumed error of the blended pose's centroids, in shirt sizes (6-DoF fit weights).
     baseline_damping_std : float
-        Baseline only: weak pull (rad / m) towards the blended pose that keeps the
-        unconstrained directions of the IK determined (plain damping).
+        Without ``ik_priors`` only (the baseline before session 15): weak pull (rad / m) towards
+        the blended pose that keeps the unconstrained directions of the IK determined (plain damping).
     keep_classification : bool
         Keep per-camera classification maps in the results (for ROC curves).
     """
