@@ -435,11 +435,12 @@ class SkeletonSolver:
         if hit is None:
             q, rms, iters[f], H = self._fit_frame(obs, ok, q_prev)
             self._record(out, f, q, rms, H, obs, ok)
-            self._memo.put(f, key, (q, rms, int(iters[f]), errors[f].copy(), centres[f].copy(), std[f].copy()))
+            # the memo keeps its own copy: q goes on as the next frame's warm start
+            self._memo.put(f, key, (q.copy(), rms, int(iters[f]), errors[f].copy(), centres[f].copy(), std[f].copy()))
             return q
         q, rms_m[f], iters[f], errors[f], centres[f], std[f] = hit
         q_out[f] = q
-        return q
+        return q.copy()
 
     def _record(self, out: tuple, f: int, q: np.ndarray, rms: float, H: np.ndarray, obs: np.ndarray, ok: np.ndarray) -> None:
         """Store frame ``f``'s solution ``q`` in ``out = (q_out, errors, centres, std, rms_m)``."""
