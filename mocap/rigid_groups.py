@@ -127,9 +127,10 @@ class RigidGroupRules:
                 idx[np.isin(idx, pts)] = -1  # a label outside the group that held one of its points loses it
                 idx[g] = -1
                 idx[labels] = pts
+        partner_rot: dict = {}  # the partner groups' rotations on this frame's points
         for gi in range(len(self.rigid_groups)):
             idx = self._fit_surroundings(gi, idx, points)
-            idx = self._fit_partners(gi, idx, points)
+            idx = self._fit_partners(gi, idx, points, partner_rot)
         return idx
 
     def _fit_surroundings(self, gi: int, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -172,7 +173,7 @@ class RigidGroupRules:
             idx[best[1]] = pts
         return idx
 
-    def _fit_partners(self, gi: int, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def _fit_partners(self, gi: int, idx: np.ndarray, points: np.ndarray, partner_rot: dict | None = None) -> np.ndarray:
         """Give a rigid group's points to other labels of it where its labels turn it, relative to a
         partner group (:meth:`_learn_partners`), clearly beyond anything the trial had
         (:data:`PARTNER_OUTSIDE` times its largest deviation) and another labelling lies within the
@@ -194,7 +195,7 @@ class RigidGroupRules:
         if len(have) < 3 or not self.group_partners[gi]:
             return idx
         pts = idx[have]
-        current = self._partner_deviation(gi, have, pts, idx, points)
+        current = self._partner_deviation(gi, have, pts, idx, points, partner_rot)
         if current is None or current <= PARTNER_OUTSIDE:
             return idx
         q = points[pts]
@@ -207,7 +208,7 @@ class RigidGroupRules:
         rivals = []  # (deviation, surroundings score, labels) of every other labelling
         for labels in perms[shape <= own + self.shape_tol_m]:
             order = np.argsort(labels)
-            dev = self._partner_deviation(gi, labels[order], pts[order], idx, points)
+            dev = self._partner_deviation(gi, labels[order], pts[order], idx, points, partner_rot)
             if dev is None or np.array_equal(labels, have):
                 continue
             score = np.inf
@@ -292,26 +293,48 @@ class RigidGroupRules:
         return idx
 
     def _partner_deviation(self, gi: int, labels: np.ndarray, pts: np.ndarray, idx: np.ndarray,
-                           points: np.ndarray) -> float | None:
+                           points: np.ndarray, partner_rot: dict | None = None) -> float | None:
         """How far group ``gi`` with ``labels`` on points ``pts`` turns from where the trial had it
         relative to its fully labelled partners (:meth:`_learn_partners`) that keep their shape:
-        the largest deviation over them, as a fraction of the trial's largest; None without any."""
+        the largest deviation over them, as a fraction of the trial's largest; None without any.
+        ``partner_rot``: the partners' rotations already found on these ``points``
+        (:meth:`_partner_rotation`)."""
         worst = None
+        R = None
         for gj, mean, limit in self.group_partners[gi]:
-            other = self.rigid_groups[gj]
-            if not (idx[other] >= 0).all():
+            R_other = self._partner_rotation(gj, idx, points, partner_rot)
+            if R_other is None:
                 continue
-            q = points[idx[other]]
-            shape = np.linalg.norm(q[:, None] - q[None], axis=2) - self.mean_dist_m[np.ix_(other, other)]
-            if np.abs(shape).max() > self.shape_tol_m:
-                continue  # a partner on a wrong point would turn this group wrong
-            g = self.rigid_groups[gi]
-            R = kabsch(self.group_local[gi][np.searchsorted(g, labels)], points[pts])[0]
-            R_other = kabsch(self.group_local[gj], q)[0]
+            if R is None:  # the same for every partner
+                g = self.rigid_groups[gi]
+                R = kabsch(self.group_local[gi][np.searchsorted(g, labels)], points[pts])[0]
             rel = R.T @ R_other
             dev = float(np.arccos(np.clip((np.trace(rel @ mean.T) - 1.0) / 2.0, -1.0, 1.0))) / limit
             worst = dev if worst is None else max(worst, dev)
         return worst
+
+    def _partner_rotation(self, gj: int, idx: np.ndarray, points: np.ndarray,
+                          partner_rot: dict | None) -> np.ndarray | None:
+        """Group ``gj``'s rotation on its labelled points, or None unless every member is labelled
+        and the points keep its shape (a partner on a wrong point would turn the other group wrong).
+
+        Kept in ``partner_rot`` (one frame's ``points``), keyed by the group and its points: a
+        group is the partner of some 14 others, each of whose labellings asks for it, and
+        recomputing it was two thirds of labelling a real capture (Res16bits.c3d, frames 50-99:
+        202 434 Kabsch fits, 50 of 75 profiled seconds; 61 606 fits with this)."""
+        other = self.rigid_groups[gj]
+        on = idx[other]
+        if not (on >= 0).all():
+            return None
+        key = (gj, on.tobytes())
+        if partner_rot is not None and key in partner_rot:
+            return partner_rot[key]
+        q = points[on]
+        shape = np.linalg.norm(q[:, None] - q[None], axis=2) - self.mean_dist_m[np.ix_(other, other)]
+        R_other = None if np.abs(shape).max() > self.shape_tol_m else kabsch(self.group_local[gj], q)[0]
+        if partner_rot is not None:
+            partner_rot[key] = R_other
+        return R_other
 
     def rigidly_placed(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Labels ``(M,)`` bool whose point keeps its rigid group's shape with at least two other

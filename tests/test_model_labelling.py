@@ -10,6 +10,7 @@ against the capture: RMSE over measured samples, every gap re-labelled, no swaps
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -422,10 +423,12 @@ def test_symmetric_triads_keep_their_labels_by_turning_least() -> None:
     assert wrong <= 0.01 * there, f"{wrong} labels more than 20 mm from their marker"
 
 
-def _racing_window(first: int, last: int, markers: tuple[str, ...] = ()) -> tuple[int, int, int]:
-    """c3d_racing_propulsion's stored unlabelled points of frames ``first`` to ``last`` (exclusive)
-    labelled by the model learned from the capture: ``(labelled right, reconstructed within 5 mm,
-    labelled more than 20 mm off)`` over ``markers`` (default every marker)."""
+@functools.lru_cache(maxsize=None)
+def _racing_labelled(first: int, last: int) -> tuple:
+    """c3d_racing_propulsion's capture reference, its stored unlabelled points of frames ``first``
+    to ``last`` (exclusive) and their labelling by the model learned from the capture. Kept for
+    the module: several tests score the same window over different markers, and labelling a
+    40-frame window takes tens of seconds."""
     from simbench.scenario import load_scenario
     from simbench.stage.build import build_stage
 
@@ -435,11 +438,18 @@ def _racing_window(first: int, last: int, markers: tuple[str, ...] = ()) -> tupl
     C = int(z["n_cameras"])
     frames = [UnlabelledPoints(z["xyz"][a:b].astype(float), np.full((b - a, C), -1), z["n_views"][a:b].astype(int),
                                np.zeros(b - a), z["ambiguous"][a:b]) for a, b in zip(ends - z["counts"], ends)]
+    return ref, frames[first:last], label_points(frames[first:last], ref.marker_model())
+
+
+def _racing_window(first: int, last: int, markers: tuple[str, ...] = ()) -> tuple[int, int, int]:
+    """c3d_racing_propulsion's stored unlabelled points of frames ``first`` to ``last`` (exclusive)
+    labelled by the model learned from the capture: ``(labelled right, reconstructed within 5 mm,
+    labelled more than 20 mm off)`` over ``markers`` (default every marker)."""
+    ref, frames, result = _racing_labelled(first, last)
     truth = ref.xyz[first:last]
-    result = label_points(frames[first:last], ref.marker_model())
     which = [list(ref.labels).index(n) for n in markers] if markers else list(range(len(ref.labels)))
     right = there = wrong = 0
-    for f, fr in enumerate(frames[first:last]):
+    for f, fr in enumerate(frames):
         seen = np.isfinite(truth[f]).all(axis=1)
         near, nearest = cKDTree(fr.xyz).query(np.where(seen[:, None], truth[f], 1e3))
         for m in which:
