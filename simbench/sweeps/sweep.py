@@ -227,6 +227,20 @@ def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
             p.join(1.0)
 
 
+def _join_manager_thread(pool: cf.ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+    """Wait for a stopped pool's manager thread to finish closing its wake-up pipe.
+
+    Python 3.11's exit hook (``concurrent.futures.process._python_exit``) writes to every
+    live pool's wake-up pipe without the lock the manager thread closes it under; if the
+    interpreter exits while that thread is still closing it, the hook prints an
+    ``OSError: [Errno 9] Bad file descriptor`` traceback after the interrupt line (seen in
+    CI). Once the thread has ended the pipe is marked closed and the hook skips it.
+    """
+    thread = getattr(pool, "_executor_manager_thread", None)  # no public API
+    if thread is not None and thread.is_alive():
+        thread.join(timeout_s)
+
+
 def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bool] | None = None) -> Iterator[RunRecord]:
     """Run tasks on a spawn process pool, ``workers`` at a time; yield records as they finish.
 
@@ -271,6 +285,8 @@ def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bo
             if not finished:
                 _stop_workers(pool)
             pool.shutdown(wait=finished, cancel_futures=True)
+            if not finished:
+                _join_manager_thread(pool)
 
 
 def iter_dask(tasks: list[RunTask], scheduler: str) -> Iterator[RunRecord]:
