@@ -110,3 +110,50 @@ def test_ik_kernels_are_the_numpy_expressions():
         norm = np.sqrt(np.einsum("ni,ni->n", rw, rw))
         w0 = np.where(norm > 2.5, np.sqrt(2.5 / np.maximum(norm, 1e-12)), 1.0)
         assert np.array_equal(w, w0) and np.array_equal(out, (rw * w0[:, None]).ravel())
+
+
+def test_silhouette_field_is_numpy_gradient_stacked():
+    from mocap.shirt.ik import Silhouette
+    rng = np.random.default_rng(7)
+    for t in range(300):
+        h, w = (int(v) for v in rng.integers(2, 50, 2))
+        D = (rng.random((h, w)) * 50).astype([np.float32, np.float64][t % 2])
+        if t % 7 == 0:
+            D[:] = 1.8e19  # no classified pixel
+        scale = [2.5, np.float32(1.37), 3, 0.1][t % 4]
+        Dd = np.asarray(D, np.float64)
+        gy, gx = np.gradient(Dd)
+        expected = np.stack([Dd, gx / scale, gy / scale], axis=2).reshape(-1, 3)
+        got = Silhouette(D, 1.0, 2.0, scale)._field
+        assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+def test_colour_distances_are_the_numpy_passes():
+    from mocap.shirt.colour_model import ColourModel
+    rng = np.random.default_rng(8)
+    for t in range(200):
+        K = int(rng.integers(1, 12))
+        A = rng.normal(size=(K, 3, 3))
+        cov = A @ A.transpose(0, 2, 1) * 10.0 ** rng.uniform(-5, -1) + np.eye(3) * 1e-6
+        model = ColourModel(rng.random((K, 3)), cov, tuple(str(i) for i in range(K)))
+        x = rng.random((int(rng.integers(0, 2000)), 3)).astype(np.float32)
+        x[rng.random(len(x)) < 0.05] = np.nan
+        W = None if t % 4 == 0 else np.eye(3) + rng.normal(size=(3, 3)) * 0.1
+        rows = model.whiten.transpose(1, 0, 2).reshape(3 * K, 3)
+        b = np.einsum("kij,kj->ik", model.whiten, model.means).reshape(3 * K)
+        y = x @ (rows if W is None else rows @ W).T.astype(np.float32)
+        y -= b.astype(np.float32)
+        y *= y
+        d = y[:, :K] + y[:, K:2 * K]
+        d += y[:, 2 * K:]
+        expected = np.sqrt(d, out=d)
+        got = model.distances(x, W)
+        assert got.dtype == expected.dtype and np.array_equal(got, expected, equal_nan=True)
+
+
+def test_look_at_view_cross_products_are_numpys():
+    from mocap.shirt.shirt_model import _cross3
+    rng = np.random.default_rng(9)
+    for _ in range(3000):
+        a, b = rng.normal(size=(2, 3)) * 10.0 ** rng.uniform(-3, 3, (2, 1))
+        assert np.array_equal(_cross3(a, b), np.cross(a, b))

@@ -36,12 +36,20 @@ def look_at_view(forward: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0]
     """
     z = np.asarray(forward, float)
     z = z / np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, float))
+    x = _cross3(z, np.asarray(up, float))
     if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 0.0, 1.0]))
+        x = _cross3(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 0.0, 1.0]))
     x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.vstack([x, y, z])
+    y = _cross3(z, x)
+    return np.array([x, y, z])
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two 3-vectors, the same products and differences in the same order (its
+    generic path cost 0.1 ms a call, three calls for every camera's ray rotation a frame)."""
+    a0, a1, a2 = (float(v) for v in a)
+    b0, b1, b2 = (float(v) for v in b)
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 # --------------------------------------------------------------------------- the model
