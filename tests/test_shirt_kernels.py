@@ -157,3 +157,37 @@ def test_look_at_view_cross_products_are_numpys():
     for _ in range(3000):
         a, b = rng.normal(size=(2, 3)) * 10.0 ** rng.uniform(-3, 3, (2, 1))
         assert np.array_equal(_cross3(a, b), np.cross(a, b))
+
+
+def _stray_thin_bits_by_components(colour):
+    """without_stray_thin_bits as it was written with OpenCV's connected components per colour."""
+    import cv2
+    from mocap.shirt.id_maps import without_thin_bits
+    opened = without_thin_bits(colour)
+    out = colour.copy()
+    for k in np.unique(colour[(colour >= 0) & (opened < 0)]):
+        x, y, w, h = cv2.boundingRect((colour == k).astype(np.uint8))
+        box = (slice(y, y + h), slice(x, x + w))
+        mask = colour[box] == k
+        n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+        thick = np.zeros(n, bool)
+        thick[lab[opened[box] == k]] = True
+        out[box][mask & ~thick[lab]] = -1
+    return out
+
+
+def test_stray_thin_bits_flood_fill_is_the_connected_components_form():
+    from mocap.shirt.id_maps import without_stray_thin_bits
+    rng = np.random.default_rng(11)
+    for t in range(600):
+        h, w = (int(v) for v in rng.integers(1, 150 if t % 10 == 0 else 60, 2))
+        K = int(rng.integers(1, 11))
+        c = rng.integers(-1, K, (h, w)).astype(np.int16)
+        if t % 2:  # blobs, one-pixel rims and stray pixels
+            c[:] = -1
+            for _ in range(int(rng.integers(1, 8))):
+                y0, x0 = rng.integers(0, h), rng.integers(0, w)
+                c[y0:y0 + int(rng.integers(1, 20)), x0:x0 + int(rng.integers(1, 20))] = rng.integers(0, K)
+            c[rng.random((h, w)) < 0.03] = rng.integers(0, K)
+        expected, got = _stray_thin_bits_by_components(c), without_stray_thin_bits(c)
+        assert got.dtype == expected.dtype and np.array_equal(got, expected)

@@ -10,6 +10,7 @@ padded with its edge (:func:`edge_padded`) and the distance to the classified sh
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 from mocap.distance_transform import exact_distance_transform
@@ -45,17 +46,47 @@ def without_stray_thin_bits(colour: np.ndarray) -> np.ndarray:
     A rim of mixed pixels along an outline goes; a limb seen 1-2 pixels wide at its end stays
     with the thicker part of its colour it joins.
     """
-    opened = without_thin_bits(colour)
+    colour = np.asarray(colour)
+    # (one compiled flood fill over all colours: per colour, bounding box and connectedComponents
+    # cost 0.1 ms a colour, up to ten a map, twice a frame; a component is a set of pixels, so the
+    # same pixels go)
+    return _stray_thin_bits_out(np.ascontiguousarray(colour), np.ascontiguousarray(without_thin_bits(colour)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _stray_thin_bits_out(colour, opened):  # pragma: no cover
+    """:func:`without_stray_thin_bits`: a copy of ``colour`` with -1 on each 8-connected component of one colour
+    ``k >= 0`` where ``opened`` is nowhere ``k``."""
+    h, w = colour.shape
     out = colour.copy()
-    for k in np.unique(colour[(colour >= 0) & (opened < 0)]):
-        # within the colour's bounding box (its components lie inside it)
-        x, y, w, h = cv2.boundingRect((colour == k).astype(np.uint8))
-        box = (slice(y, y + h), slice(x, x + w))
-        mask = colour[box] == k
-        n, lab = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
-        thick = np.zeros(n, bool)
-        thick[lab[opened[box] == k]] = True
-        out[box][mask & ~thick[lab]] = -1
+    seen = np.zeros((h, w), np.bool_)
+    stack = np.empty(h * w, np.int64)
+    members = np.empty(h * w, np.int64)
+    for y0 in range(h):
+        for x0 in range(w):
+            k = colour[y0, x0]
+            if k < 0 or seen[y0, x0]:
+                continue
+            seen[y0, x0] = True
+            stack[0] = y0 * w + x0
+            top, n, thick = 1, 0, False
+            while top > 0:
+                top -= 1
+                p = stack[top]
+                members[n] = p
+                n += 1
+                y, x = p // w, p % w
+                if opened[y, x] == k:
+                    thick = True
+                for yy in range(max(y - 1, 0), min(y + 2, h)):
+                    for xx in range(max(x - 1, 0), min(x + 2, w)):
+                        if not seen[yy, xx] and colour[yy, xx] == k:
+                            seen[yy, xx] = True
+                            stack[top] = yy * w + xx
+                            top += 1
+            if not thick:
+                for i in range(n):
+                    out[members[i] // w, members[i] % w] = -1
     return out
 
 
