@@ -191,3 +191,14 @@ def test_stray_thin_bits_flood_fill_is_the_connected_components_form():
             c[rng.random((h, w)) < 0.03] = rng.integers(0, K)
         expected, got = _stray_thin_bits_by_components(c), without_stray_thin_bits(c)
         assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+def test_tiny_map_percentiles_are_numpys():
+    from mocap.shirt.pose_database import _percentiles
+    rng = np.random.default_rng(12)
+    for t in range(3000):
+        n = int(rng.integers(2, 2000 if t % 10 else 30))
+        v = rng.integers(0, int(rng.integers(1, 300)), n)
+        pc = [1.0, 0.0, 50.0, 2.5, 100.0, 33.3][t % 6]
+        expected, got = np.percentile(v, [pc, 100 - pc]), _percentiles(v, pc)
+        assert got.dtype == expected.dtype and np.array_equal(got, expected)

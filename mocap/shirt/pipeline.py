@@ -203,7 +203,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         index = -np.ones(P, int)
         index[use] = np.arange(use.size)
         a = index[patch_a] >= 0
-        return Constraints(np.full(use.size, ci), use, np.where(seen[use, None], np.nan_to_num(targets_px[use]), 0.0), sqrt_info[use],
+        # (seen targets are finite: np.nan_to_num, which only the zeroed rows needed, is left out)
+        return Constraints(np.full(use.size, ci), use, np.where(seen[use, None], targets_px[use], 0.0), sqrt_info[use],
                            np.full(use.size, float(size_px)), miss[use], index[patch_a[a]], body_a[a], point_a[a], weight_a[a])
 
     # ------------------------------------------------------------------ one frame
