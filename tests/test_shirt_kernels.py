@@ -202,3 +202,34 @@ def test_tiny_map_percentiles_are_numpys():
         pc = [1.0, 0.0, 50.0, 2.5, 100.0, 33.3][t % 6]
         expected, got = np.percentile(v, [pc, 100 - pc]), _percentiles(v, pc)
         assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+def test_pinhole_projection_pass_is_the_numpy_form():
+    from mocap.shirt.shirt_model import NEAR_M, _pinhole_to_view
+    rng = np.random.default_rng(13)
+    for t in range(1000):
+        Xc = rng.normal(size=(int(rng.integers(0, 300)), 3)) * [1.0, 1.0, 3.0]
+        Xc[rng.random(len(Xc)) < 0.02, 2] = np.nan
+        K = np.array([[rng.uniform(100, 2000), 0.0, rng.uniform(0, 1000)], [0.0, rng.uniform(100, 2000), rng.uniform(0, 1000)], [0, 0, 1]])
+        x0, y0, scale = rng.normal() * 500, rng.normal() * 500, rng.uniform(0.3, 5)
+        z = Xc[:, 2]
+        zs = np.where(z > NEAR_M, z, 1.0)
+        uv = (Xc[:, :2] / zs[:, None]) @ K[:2, :2].T + K[:2, 2]
+        expected = (uv - np.array([x0, y0])) / scale
+        got = _pinhole_to_view(Xc, NEAR_M, K[0, 0], K[0, 1], K[1, 0], K[1, 1], K[0, 2], K[1, 2], x0, y0, scale)
+        assert np.array_equal(got, expected, equal_nan=True)
+
+
+def test_layer_maps_are_the_look_ups():
+    from mocap.shirt.shirt_model import _layer_maps
+    rng = np.random.default_rng(14)
+    for t in range(300):
+        T, offset = int(rng.integers(1, 500)), int(rng.integers(0, 3)) * 500
+        face = np.where(rng.random((24, 24)) < 0.3, -1, rng.integers(offset, offset + T, (24, 24))).astype(np.int32)
+        patch_of = rng.integers(-1, 20, T + 1).astype(np.int16)
+        colour_of = rng.integers(-1, 10, T + 1).astype(np.int16)
+        ids = np.full(face.shape, -1, np.int32)
+        np.subtract(face, offset, out=ids, where=face >= 0, casting="unsafe")
+        f, patch, colour = _layer_maps(face, offset, patch_of, colour_of)
+        for got, expected in ((f, ids), (patch, patch_of[ids + 1]), (colour, colour_of[ids + 1])):
+            assert got.dtype == expected.dtype and np.array_equal(got, expected)

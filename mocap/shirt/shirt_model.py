@@ -185,6 +185,13 @@ class ShirtModel:
         if np.any(camera.dist != 0):
             uv, _ = cv2.projectPoints(P, camera.rvec, camera.t, camera.K, camera.dist)
             uv = uv.reshape(-1, 2)
+        elif camera.K[0, 1] == 0 and camera.K[1, 0] == 0 and Xc.dtype == np.float64:
+            # the rest in one compiled pass (numpy's took five over the vertices, 4 renders of 2 cameras
+            # and the arm search a frame); without skew each pixel coordinate of the K product is one
+            # product plus an exact zero, the same value whatever order BLAS sums in
+            K = camera.K
+            return _pinhole_to_view(Xc, NEAR_M, K[0, 0], K[0, 1], K[1, 0], K[1, 1], K[0, 2], K[1, 2],
+                                    float(view.x0), float(view.y0), float(view.scale)), z
         else:
             zs = np.where(z > NEAR_M, z, 1.0)
             uv = (Xc[:, :2] / zs[:, None]) @ camera.K[:2, :2].T + camera.K[:2, 2]
@@ -207,7 +214,7 @@ class ShirtModel:
         z = np.concatenate([d for _, d in proj])
         faces, layer = self._layered(n, V)
         face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
-        return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
+        return [self._finish_layer(face[i], i * T) for i in range(n)]
 
     def _layered(self, n: int, V: int) -> tuple[np.ndarray, np.ndarray]:
         """The mesh's faces repeated for ``n`` renders of ``V`` vertices each in one rasteriser call (vertex
@@ -217,6 +224,11 @@ class ShirtModel:
             faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
             got = self._layers[(n, V)] = (faces, np.repeat(np.arange(n), len(self.faces)))
         return got
+
+    def _finish_layer(self, face: np.ndarray, offset: int) -> Rendered:
+        """``self._finish(self._layer_faces(face, offset))`` in one compiled pass over the map (integers: the same ids)."""
+        f, patch, colour = _layer_maps(np.ascontiguousarray(face), int(offset), self._patch_of, self._colour_of)
+        return Rendered(f, patch, colour)
 
     @staticmethod
     def _layer_faces(face: np.ndarray, offset: int) -> np.ndarray:
@@ -257,7 +269,7 @@ class ShirtModel:
         z = np.concatenate([vv[:, 2] + 100.0 for vv in view_vertices])
         faces, layer = self._layered(n, V)
         face = rasterise_faces(uv, z, faces, size, size, face_layer=layer, n_layers=n)
-        return [self._finish(self._layer_faces(face[i], i * T)) for i in range(n)]
+        return [self._finish_layer(face[i], i * T) for i in range(n)]
 
     def view_vertices_batch(self, hinges: np.ndarray, view_rotation: np.ndarray) -> np.ndarray:
         """``(B, V, 3)`` view-frame vertices of ``B`` poses (see :meth:`view_vertices`)."""
@@ -347,3 +359,38 @@ def _anchor_sums(face, face_patch, face_body, centre, B, size):  # pragma: no co
         for k in range(3):
             sums[key, k] += centre[f, k]
     return n, sums
+
+
+@numba.njit(cache=True, nogil=True)
+def _pinhole_to_view(Xc, near, k00, k01, k10, k11, cx, cy, x0, y0, scale):  # pragma: no cover
+    """:meth:`ShirtModel._project`'s pinhole path after ``Xc``: ``zs = where(z > near, z, 1)``,
+    ``uv = (Xc[:, :2] / zs) @ K[:2, :2].T + K[:2, 2]`` (with ``k01 = k10 = 0``), then ``view.from_image``:
+    ``(uv - (x0, y0)) / scale``."""
+    n = Xc.shape[0]
+    out = np.empty((n, 2))
+    for i in range(n):
+        z = Xc[i, 2]
+        zs = z if z > near else 1.0
+        x = Xc[i, 0] / zs
+        y = Xc[i, 1] / zs
+        out[i, 0] = ((x * k00 + y * k01) + cx - x0) / scale
+        out[i, 1] = ((x * k10 + y * k11) + cy - y0) / scale
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _layer_maps(face, offset, patch_of, colour_of):  # pragma: no cover
+    """Face ids of one layer (``face - offset`` where ``face >= 0``, else -1; int32) and their patch and colour by the
+    look-up tables (entry ``id + 1``)."""
+    f = np.empty(face.shape, np.int32)
+    patch = np.empty(face.shape, patch_of.dtype)
+    colour = np.empty(face.shape, colour_of.dtype)
+    fr, pr, cr = face.reshape(-1), f.reshape(-1), patch.reshape(-1)
+    for i in range(fr.size):
+        g = fr[i] - offset if fr[i] >= 0 else -1
+        pr[i] = g
+        cr[i] = patch_of[g + 1]
+    colour_r = colour.reshape(-1)
+    for i in range(fr.size):
+        colour_r[i] = colour_of[pr[i] + 1]
+    return f, patch, colour
