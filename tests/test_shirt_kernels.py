@@ -233,3 +233,29 @@ def test_layer_maps_are_the_look_ups():
         f, patch, colour = _layer_maps(face, offset, patch_of, colour_of)
         for got, expected in ((f, ids), (patch, patch_of[ids + 1]), (colour, colour_of[ids + 1])):
             assert got.dtype == expected.dtype and np.array_equal(got, expected)
+
+
+def test_half_covered_cells_are_the_mean_test():
+    from mocap.shirt.histogram_search import _half_covered
+    rng = np.random.default_rng(15)
+    for t in range(500):
+        c, ny, nx = int(rng.integers(1, 9)), int(rng.integers(1, 30)), int(rng.integers(1, 30))
+        fg = rng.random((ny * c, nx * c)) < rng.random()
+        expected = fg.reshape(ny, c, nx, c).mean(axis=(1, 3)) >= 0.5
+        assert np.array_equal(_half_covered(fg, c, ny, nx), expected)
+
+
+def test_cell_counts_are_the_per_pixel_bins_counted():
+    from mocap.shirt.histogram_search import HistogramSearchParams, _bin_lut, _cell_counts, chromaticity_bins
+    rng = np.random.default_rng(16)
+    params = HistogramSearchParams()
+    lut, nb = _bin_lut(params.bins_per_axis, params.min_brightness)
+    for t in range(100):
+        c, by, bx = int(rng.integers(1, 6)), int(rng.integers(1, 20)), int(rng.integers(1, 20))
+        img = rng.integers(0, 256, (by * c, bx * c, 3)).astype(np.uint8)
+        mask = rng.random((by * c, bx * c)) < 0.7
+        b, _ = chromaticity_bins(img, params, mask)
+        cell = (np.arange(by * c)[:, None] // c) * bx + np.arange(bx * c)[None, :] // c
+        ok = b >= 0
+        expected = np.bincount(cell[ok] * nb + b[ok], minlength=by * bx * nb).reshape(by, bx, nb).astype(np.float32)
+        assert np.array_equal(_cell_counts(img, mask, lut, c, by, bx, nb), expected)
