@@ -259,3 +259,14 @@ def test_cell_counts_are_the_per_pixel_bins_counted():
         ok = b >= 0
         expected = np.bincount(cell[ok] * nb + b[ok], minlength=by * bx * nb).reshape(by, bx, nb).astype(np.float32)
         assert np.array_equal(_cell_counts(img, mask, lut, c, by, bx, nb), expected)
+
+
+def test_linear_lookup_is_the_table_indexed():
+    from mocap.shirt.colour_model import SRGB_TO_LINEAR, linear_lookup
+    rng = np.random.default_rng(17)
+    for shape in [(144, 144, 3), (0, 3), (5,), (7, 9, 3)]:
+        codes = rng.integers(0, 256, shape).astype(np.uint8)
+        got, expected = linear_lookup(codes), SRGB_TO_LINEAR[codes]
+        assert got.dtype == expected.dtype and got.shape == expected.shape and np.array_equal(got, expected)
+    codes = rng.integers(0, 256, (20, 20, 3)).astype(np.uint8)[:, ::2]
+    assert np.array_equal(linear_lookup(codes), SRGB_TO_LINEAR[codes])

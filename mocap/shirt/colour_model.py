@@ -29,6 +29,7 @@ from mocap.srgb import SRGB_TO_LINEAR as _SRGB_TO_LINEAR_F64
 __all__ = [
     "SRGB_TO_LINEAR",
     "to_linear",
+    "linear_lookup",
     "ColourModel",
     "train_colour_model",
     "labelled_colour_means",
@@ -53,7 +54,24 @@ def to_linear(image: np.ndarray) -> np.ndarray:
     img = np.asarray(image)
     if img.dtype != np.uint8:
         raise MocapInputError(f"to_linear: expected uint8 sRGB pixels, got dtype {img.dtype}")
-    return SRGB_TO_LINEAR[img]
+    return linear_lookup(img)
+
+
+def linear_lookup(codes: np.ndarray) -> np.ndarray:
+    """``SRGB_TO_LINEAR[codes]``; for uint8 codes in one compiled pass (numpy's fancy indexing first converts
+    every code to a 64-bit index: 0.24 ms a 144 x 144 crop, two or three a frame)."""
+    c = np.asarray(codes)
+    if c.dtype != np.uint8:
+        return SRGB_TO_LINEAR[c]
+    return _lookup_u8(np.ascontiguousarray(c).reshape(-1), SRGB_TO_LINEAR).reshape(c.shape)
+
+
+@numba.njit(cache=True, nogil=True)
+def _lookup_u8(codes, table):  # pragma: no cover
+    out = np.empty(codes.shape[0], table.dtype)
+    for i in range(codes.shape[0]):
+        out[i] = table[codes[i]]
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -83,7 +83,7 @@ from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
                                   crop_view, foreground_pixels, nearest_colour, other_distance, patch_centroids,
                                   patch_distances)
-from mocap.shirt.colour_model import (SRGB_TO_LINEAR, ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means,
+from mocap.shirt.colour_model import (ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means, linear_lookup,
                                      solve_white_balance)
 from mocap.shirt.global_fit import GlobalFit
 from mocap.shirt.histogram_search import search_shirt
@@ -395,7 +395,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         for attempt in range(2):
             view = crop_view(loc.x, loc.y, side, p.work_size)
             raw = crop_image(img, view)
-            lin = SRGB_TO_LINEAR[raw]
+            lin = linear_lookup(raw)
             if full is not None:
                 fg = crop_image(full.view(np.uint8), view, cv2.INTER_NEAREST) > 0
                 bg = self.backgrounds[ci]
