@@ -202,19 +202,24 @@ def _refine_normalized(
     wk = w[:, ok]
     Xk = X[ok]
     f = _focal(calibration)
+    Rs, ts = _rotations_translations(calibration)
+    # Every camera at once (stacked products: each camera's slice is the product it had
+    # alone, to the bit), the per-camera terms then summed in camera order as before.
     for _ in range(iterations):
         JTJ = np.zeros((len(Xk), 3, 3))
         JTr = np.zeros((len(Xk), 3))
-        for c, cam in enumerate(calibration):
-            pc = Xk @ cam.R.T + cam.t                                  # (n, 3) camera frame
-            z = pc[:, 2:3]
-            uv = pc[:, :2] / z
-            # d(uv)/dX = (R[:2] - uv R[2]) / z, in pixels via f.
-            J = (cam.R[None, :2, :] - uv[:, :, None] * cam.R[None, 2:3, :]) / z[:, :, None] * f[c]
-            r = (uv - obs[c]) * f[c]
-            sw = wk[c][:, None, None]
-            JTJ += np.matmul(J.transpose(0, 2, 1), J * sw)
-            JTr += np.matmul(J.transpose(0, 2, 1), (r * wk[c][:, None])[:, :, None])[..., 0]
+        pc = np.matmul(Xk, Rs.transpose(0, 2, 1)) + ts[:, None, :]   # (C, n, 3) camera frames
+        z = pc[..., 2:3]
+        uv = pc[..., :2] / z
+        # d(uv)/dX = (R[:2] - uv R[2]) / z, in pixels via f.
+        J = (Rs[:, None, :2, :] - uv[..., None] * Rs[:, None, 2:3, :]) / z[..., None] * f[:, None, None, None]
+        r = (uv - obs) * f[:, None, None]
+        JT = J.transpose(0, 1, 3, 2)
+        JTJ_c = np.matmul(JT, J * wk[..., None, None])
+        JTr_c = np.matmul(JT, (r * wk[..., None])[..., None])[..., 0]
+        for c in range(len(Rs)):
+            JTJ += JTJ_c[c]
+            JTr += JTr_c[c]
         # Tiny Levenberg damping guards degenerate (near-parallel) geometry.
         JTJ += 1e-12 * np.trace(JTJ, axis1=1, axis2=2)[:, None, None] * np.eye(3)
         Xk = Xk - np.linalg.solve(JTJ, JTr[..., None])[..., 0]
@@ -325,7 +330,11 @@ def project_normalized(p3ds: np.ndarray, calibration: Calibration) -> np.ndarray
     NaN for points behind a camera or NaN input.
     """
     X = np.asarray(p3ds, dtype=np.float64).reshape(-1, 3)
-    return np.stack([camera_normalized(cam, X) for cam in calibration])
+    Rs, ts = _rotations_translations(calibration)
+    # One stacked product for every camera: each slice is :func:`camera_normalized`'s, to the bit.
+    pc = np.matmul(X, Rs.transpose(0, 2, 1)) + ts[:, None, :]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(pc[..., 2:3] > 0, pc[..., :2] / pc[..., 2:3], np.nan)
 
 
 def camera_normalized(cam, p3ds: np.ndarray) -> np.ndarray:
@@ -339,6 +348,11 @@ def pixels_to_normalized(cam, p2ds: np.ndarray) -> np.ndarray:
     """One camera's distorted pixels ``(N, 2)`` to undistorted normalised coordinates."""
     und = cam.undistort_pixels(p2ds)
     return (und - cam.K[:2, 2]) @ np.linalg.inv(cam.K[:2, :2]).T
+
+
+def _rotations_translations(calibration: Calibration) -> tuple[np.ndarray, np.ndarray]:
+    """``(C, 3, 3)`` rotations and ``(C, 3)`` translations of the cameras."""
+    return np.stack([cam.R for cam in calibration]), np.stack([cam.t for cam in calibration])
 
 
 def _focal(calibration: Calibration) -> np.ndarray:
@@ -404,22 +418,40 @@ def _robust(
             break
         # The worst camera is the one whose removal leaves the smallest worst residual
         # (least squares spreads an outlier's error, so the largest residual is not
-        # always in the faulty view). One batched solve per candidate camera.
-        score = np.full((C, todo.size), np.inf)
-        for c in range(C):
-            use_c = used[:, todo].copy()
-            has_c = use_c[c].copy()
-            if not has_c.any():
-                continue
-            use_c[c] = False
-            _, res_c = solve(todo[has_c], use_c[:, has_c])
-            score[c, has_c] = worst(res_c)
+        # always in the faulty view).
+        score = _drop_scores(used[:, todo], todo, lambda idx, use: worst(solve(idx, use)[1]))
         used[np.argmin(score, axis=0), todo] = False
     n_views = used.sum(axis=0)
     with np.errstate(invalid="ignore"):
         mean_res = np.where(n_views > 0, np.nansum(np.where(used, residuals, 0.0), axis=0) / np.maximum(n_views, 1), np.nan)
     points[n_views < min_views] = np.nan
     return TriangulationResult(points, mean_res, n_views.astype(np.int16), used)
+
+
+def _drop_scores(use: np.ndarray, todo: np.ndarray, worst_of) -> np.ndarray:
+    """``(C, n)`` worst residual of each point ``todo`` (n,) without each of its views
+    ``use`` (C, n) (inf where the point has no such view); ``worst_of(idx, use)`` solves.
+
+    The solves of every camera go in one batch (each point's solve is independent of the
+    others'), except a camera with a single point: a one-point solve goes through BLAS's
+    matrix-vector product, whose last bits differ from the matrix-matrix one of a batch,
+    so it stays alone to give the bits it always gave."""
+    C = len(use)
+    score = np.full((C, todo.size), np.inf)
+    cols = [np.flatnonzero(use[c]) for c in range(C)]
+    batch = [c for c in range(C) if len(cols[c]) >= 2]
+    for c in range(C):
+        if len(cols[c]) == 1:
+            use_c = use[:, cols[c]].copy()
+            use_c[c] = False
+            score[c, cols[c]] = worst_of(todo[cols[c]], use_c)
+    if batch:
+        col = np.concatenate([cols[c] for c in batch])
+        cam = np.repeat(batch, [len(cols[c]) for c in batch])
+        use_b = use[:, col].copy()
+        use_b[cam, np.arange(col.size)] = False
+        score[cam, col] = worst_of(todo[col], use_b)
+    return score
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
