@@ -62,7 +62,7 @@ def grown_pixels(b: Blobs, mask: np.ndarray, d: int) -> tuple[np.ndarray, np.nda
     k = 2 * d + 1
     if len(b.px) * k * k > h * w // 16:
         # cv2.dilate has no int32 support; uint16 is exact below 65536 blobs, float32 beyond.
-        lab_img = cv2.dilate(b.labels.astype(np.uint16 if b.n < 65536 else np.float32), np.ones((k, k), np.uint8))
+        lab_img = cv2.dilate(b.label_image().astype(np.uint16 if b.n < 65536 else np.float32), np.ones((k, k), np.uint8))
         pts = cv2.findNonZero(cv2.dilate(mask, np.ones((k, k), np.uint8))).reshape(-1, 2)
         return pts[:, 0], pts[:, 1], lab_img[pts[:, 1], pts[:, 0]].astype(np.intp)
     off = np.arange(-d, d + 1)
