@@ -130,10 +130,11 @@ def _pair_geometry(calibration: Calibration) -> dict[tuple[int, int], np.ndarray
 
 
 def _two_view_points(xa: np.ndarray, xb: np.ndarray, Pa: np.ndarray, Pb: np.ndarray) -> np.ndarray:
-    """Batched linear triangulation of ``K`` normalised pairs ``(K, 2)`` -> ``(K, 3)``."""
+    """Batched linear triangulation of ``K`` normalised pairs ``(K, 2)`` -> ``(K, 3)``, the
+    cameras ``[R|t]`` either ``(3, 4)`` for all or ``(K, 3, 4)`` one per pair."""
     rows = np.stack([
-        xa[:, 0:1] * Pa[2] - Pa[0], xa[:, 1:2] * Pa[2] - Pa[1],
-        xb[:, 0:1] * Pb[2] - Pb[0], xb[:, 1:2] * Pb[2] - Pb[1],
+        xa[:, 0:1] * Pa[..., 2, :] - Pa[..., 0, :], xa[:, 1:2] * Pa[..., 2, :] - Pa[..., 1, :],
+        xb[:, 0:1] * Pb[..., 2, :] - Pb[..., 0, :], xb[:, 1:2] * Pb[..., 2, :] - Pb[..., 1, :],
     ], axis=1)                                                    # (K, 4, 4)
     M = np.matmul(rows.transpose(0, 2, 1), rows)
     lhs = M[:, :3, :3] + 1e-12 * np.eye(3)
@@ -234,15 +235,16 @@ def _pair_candidates(xs: list[np.ndarray], calibration: Calibration, focal: np.n
 
 def _candidate_points(xs: list[np.ndarray], calibration: Calibration, ca: np.ndarray, cb: np.ndarray,
                       ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
-    """``(K, 3)`` two-view points of the ``K`` candidates."""
-    Ps = [np.hstack([c.R, c.t[:, None]]) for c in calibration]
-    X = np.empty((ca.size, 3))
-    for a in range(len(calibration)):
-        for b in range(a + 1, len(calibration)):
-            sel = (ca == a) & (cb == b)
-            if sel.any():
-                X[sel] = _two_view_points(xs[a][ia[sel]], xs[b][ib[sel]], Ps[a], Ps[b])
-    return X
+    """``(K, 3)`` two-view points of the ``K`` candidates, every camera pair in one batch
+    (each candidate's system is solved on its own, to the same bits as pair by pair)."""
+    Ps = np.stack([np.hstack([c.R, c.t[:, None]]) for c in calibration])
+    every, start = np.concatenate(xs), _offsets(xs)
+    return _two_view_points(every[start[ca] + ia], every[start[cb] + ib], Ps[ca], Ps[cb])
+
+
+def _offsets(xs: list[np.ndarray]) -> np.ndarray:
+    """Where each camera's detections start in their concatenation."""
+    return np.concatenate([[0], np.cumsum([len(x) for x in xs])[:-1]]).astype(np.intp)
 
 
 def _supporting_views(X: np.ndarray, xs: list[np.ndarray], calibration: Calibration, focal: np.ndarray,
