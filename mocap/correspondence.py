@@ -205,11 +205,11 @@ def _pair_candidates(xs: list[np.ndarray], calibration: Calibration, focal: np.n
     epipolar distance in pixels, whether either detection has other candidates in that
     pair of cameras), or None when there is none."""
     cand_a, cand_b, cand_ia, cand_ib, cand_d, cand_amb = [], [], [], [], [], []
+    hs = [np.column_stack([x, np.ones(len(x))]) for x in xs]   # homogeneous, (n_c, 3)
     for (a, b), E in _pair_geometry(calibration).items():
         if len(xs[a]) == 0 or len(xs[b]) == 0:
             continue
-        ha = np.column_stack([xs[a], np.ones(len(xs[a]))])     # (na, 3)
-        hb = np.column_stack([xs[b], np.ones(len(xs[b]))])     # (nb, 3)
+        ha, hb = hs[a], hs[b]
         lb = ha @ E.T                                           # epipolar lines in b, (na, 3)
         la = hb @ E                                             # epipolar lines in a, (nb, 3)
         alg = hb @ lb.T                                         # (nb, na): x_b^T E x_a

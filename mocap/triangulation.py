@@ -100,22 +100,17 @@ def normalized_coordinates(p2ds: np.ndarray, calibration: Calibration) -> np.nda
 def _dlt_normalized(xy: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted DLT. ``xy`` (C, N, 2) normalised, ``Ps`` (C, 3, 4) = [R|t], ``w`` (C, N)."""
     C, N = w.shape
-    xy0 = np.nan_to_num(xy)  # one pass for both coordinates
-    x = xy0[..., 0]
-    y = xy0[..., 1]
-    # Rows x*P3 - P1 and y*P3 - P2 for every camera: (C, N, 2, 4) -> (N, 2C, 4).
-    r1 = x[..., None] * Ps[:, None, 2, :] - Ps[:, None, 0, :]
-    r2 = y[..., None] * Ps[:, None, 2, :] - Ps[:, None, 1, :]
-    A = np.stack([r1, r2], axis=2) * w[..., None, None]
-    A = A.transpose(1, 0, 2, 3).reshape(N, 2 * C, 4)
     pts = np.full((N, 3), np.nan)
     ok = (w > 0).sum(axis=0) >= 2
     if ok.any():
+        # Rows x*P3 - P1 and y*P3 - P2 of every camera, weighted, of the points with two
+        # views only, made directly in (n, C, 2, 4) order: (n, 2C, 4) is then a free reshape.
+        xt = np.nan_to_num(xy[:, ok]).transpose(1, 0, 2)                 # (n, C, 2)
+        Ak = ((xt[..., None] * Ps[None, :, 2:3, :] - Ps[None, :, :2, :]) * w[:, ok].T[..., None, None]).reshape(-1, 2 * C, 4)
         # Inhomogeneous DLT (point = (X, 1)): least squares on the normal equations,
         # batched 3x3 solves, ~10x faster than a batched eigh/SVD of the 4x4 system
         # and, in metres and normalised coordinates, as accurate (exact data give the
         # point to ~1e-15 m). A tiny ridge keeps near-parallel rays solvable.
-        Ak = A[ok]
         Mk = np.matmul(Ak.transpose(0, 2, 1), Ak)
         lhs = Mk[:, :3, :3] + 1e-12 * np.trace(Mk[:, :3, :3], axis1=1, axis2=2)[:, None, None] * np.eye(3)
         X = np.linalg.solve(lhs, -Mk[:, :3, 3:4])[..., 0]
