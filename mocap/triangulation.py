@@ -430,7 +430,8 @@ def _drop_scores(use: np.ndarray, todo: np.ndarray, worst_of) -> np.ndarray:
     The solves of every camera go in one batch (each point's solve is independent of the
     others'), except a camera with a single point: a one-point solve goes through BLAS's
     matrix-vector product, whose last bits differ from the matrix-matrix one of a batch,
-    so it stays alone to give the bits it always gave."""
+    so it stays alone to give the bits it always gave. (Every point here keeps at least
+    ``min_views >= 2`` views, so a refinement takes all the points of its batch.)"""
     C = len(use)
     score = np.full((C, todo.size), np.inf)
     cols = [np.flatnonzero(use[c]) for c in range(C)]
