@@ -17,7 +17,7 @@ How
    each camera); pairs within ``epipolar_px`` are candidates.
 3. Each candidate is triangulated from its two views (batched DLT), must lie in front of
    both cameras, and collects *support*: in every other camera, the nearest detection to
-   its projection within ``support_px`` (``scipy.spatial.cKDTree``).
+   its projection within ``support_px`` (brute force: a few dozen detections per camera).
 4. Candidates are taken greedily, most views agreeing within ``rank_residual_px`` first
    (less their residual in those units), then smallest epipolar distance. A candidate is
    accepted when its two base detections are still free; its free support views join it,
@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from mocap.calibration import Calibration
 from mocap.errors import require_finite
@@ -254,7 +253,6 @@ def _supporting_views(X: np.ndarray, xs: list[np.ndarray], calibration: Calibrat
     nearest within ``support_px`` of its projection in the others; -1: none), and
     ``depth_ok (K,)``: the point lies in front of its pair's cameras."""
     K, C = len(X), len(calibration)
-    trees = [cKDTree(x) if len(x) else None for x in xs]
     views = np.full((K, C), -1, dtype=np.intp)
     views[np.arange(K), ca] = ia
     views[np.arange(K), cb] = ib
@@ -263,18 +261,30 @@ def _supporting_views(X: np.ndarray, xs: list[np.ndarray], calibration: Calibrat
         z = X @ cam.R[2] + cam.t[2]
         base = (ca == c) | (cb == c)
         depth_ok &= ~base | (z > p.min_depth_m)
-        if trees[c] is None:
+        if len(xs[c]) == 0:
             continue
         other = ~base & (z > p.min_depth_m)
         if not other.any():
             continue
         pc = X[other] @ cam.R.T + cam.t
         uv = pc[:, :2] / pc[:, 2:3]
-        dd, ii = trees[c].query(uv, distance_upper_bound=p.support_px / focal[c])
-        hit = np.isfinite(dd)
+        ii, hit = _nearest_within(uv, xs[c], p.support_px / focal[c])
         rows = np.flatnonzero(other)[hit]
         views[rows, c] = ii[hit]
     return views, depth_ok
+
+
+def _nearest_within(q: np.ndarray, x: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index ``(k,)`` of the nearest of the points ``x (n, 2)`` to each ``q (k, 2)``, and whether
+    it lies closer than ``r``: what ``cKDTree(x).query(q, distance_upper_bound=r)`` answers
+    (the same squared distances, ``dx * dx + dy * dy``, and the same strict test against
+    ``r * r``), by brute force: a frame's few hundred projections against a camera's few dozen
+    detections cost a tenth of building and querying the tree."""
+    dx = q[:, 0:1] - x[:, 0]
+    dy = q[:, 1:2] - x[:, 1]
+    d2 = dx * dx + dy * dy                                        # (k, n)
+    nearest = d2.argmin(axis=1)
+    return nearest, d2[np.arange(len(q)), nearest] < r * r
 
 
 def _observations(xs: list[np.ndarray], index: np.ndarray) -> np.ndarray:
