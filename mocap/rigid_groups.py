@@ -46,7 +46,7 @@ class RigidGroupRules:
     def _learn_partners(self, xyz: np.ndarray, ok: np.ndarray) -> list[list[tuple[int, np.ndarray, float]]]:
         """For each rigid group, the groups within 0.3 m whose orientation relative to it stayed
         within 90 deg of its mean over the trial: ``(other group, mean relative rotation, largest
-        deviation (rad))``. A forearm triad and its glove's turn at the wrist up to 77-84 deg from
+        deviation (rad), at least the two groups' turn noise together, :meth:`_turn_noise`)``. A forearm triad and its glove's turn at the wrist up to 77-84 deg from
         their mean relative orientation (c3d_racing_propulsion); a glove triad's two labels
         exchanged turn it 180 deg about an axis in its plane, at least 96 deg from it."""
         rot = []
@@ -56,6 +56,7 @@ class RigidGroupRules:
                 R[f] = kabsch(local, xyz[f, g])[0]
             rot.append(R)
         partners: list[list[tuple[int, np.ndarray, float]]] = [[] for _ in self.rigid_groups]
+        noise = self._turn_noise()
         for a, b in permutations(range(len(self.rigid_groups)), 2):
             both = np.isfinite(rot[a][:, 0, 0]) & np.isfinite(rot[b][:, 0, 0])
             far = np.linalg.norm(self.group_local[a].mean(axis=0) - self.group_local[b].mean(axis=0)) > 0.3
@@ -66,8 +67,24 @@ class RigidGroupRules:
             mean = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
             dev = np.arccos(np.clip((np.einsum("fij,ij->f", rel, mean) - 1.0) / 2.0, -1.0, 1.0))
             if dev.max() < np.radians(90.0):
-                partners[a].append((b, mean, float(dev.max())))
+                partners[a].append((b, mean, max(float(dev.max()), float(np.hypot(noise[a], noise[b])))))
         return partners
+
+    def _turn_noise(self) -> np.ndarray:
+        """Per rigid group, the turn (rad) that points off their markers by ``shape_tol_m`` (what
+        its shape check lets through) can give its fitted orientation: the angle that tolerance
+        subtends at the markers' RMS distance from the group's least determined axis (its longest).
+
+        Why: the largest deviation over a near-static trial is noise, not a range of motion
+        (Res16bits.c3d: 0.1-3 deg, against 2-9 deg of this), so reconstructed points turned a
+        correctly labelled group "outside the trial" and its labels were given away (2 swaps and a
+        91 mm error in `c3d_res16bits_static`'s first 0.9 s). A partner's limit is at least the two
+        groups' turns together; c3d_racing_propulsion's partners' (29-84 deg) are all above it."""
+        out = np.empty(len(self.group_local))
+        for gi, local in enumerate(self.group_local):
+            s = np.linalg.svd(local - local.mean(axis=0), compute_uv=False)
+            out[gi] = np.arctan(self.shape_tol_m / max(float(np.sqrt((s[1:] ** 2).sum() / len(local))), 1e-9))
+        return out
 
     def keep_rigid_orientation(self, idx: np.ndarray, points: np.ndarray, last: np.ndarray) -> np.ndarray:
         """Within each rigid group, give its points to the labels that turn the group least since
