@@ -318,21 +318,19 @@ class ClusterMarkerModel(RigidGroupRules):
               gates: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
         last = state  # the previous frame's markers (labelled, else predicted)
         pred = constant_velocity(state, previous)
-        # A rigid group's member neither labelled nor predicted in the previous frame takes a point
-        # by motion only within the tight gate: its group's shape brings it back
-        # (:meth:`reacquire_groups`), not the wide gate around where it was lost.
+        # A rigid group's member neither labelled nor predicted in the previous frame takes no point
+        # by motion: its group's shape brings it back (:meth:`reacquire_groups`). Its prediction is
+        # where it was last seen, frames ago, and a sibling 40 mm away can sit inside even the tight
+        # gate around it (c3d_racing_propulsion, both scapula triads lost in frames 24-36 and 65-76:
+        # ScapulaL2's place from frame 37 was 31-48 mm off and took ScapulaL1's or ScapulaL3's
+        # point in frames 23, 63 and 64, 40-43 mm off, 3 of the run's 6 swaps).
         adrift = self._adrift(previous)
         idx = assign_to_predictions(np.where(adrift[:, None], np.nan, pred), points, gates[0], allowed=trusted)
-        if adrift.any():
-            free_points = trusted.copy()
-            free_points[idx[idx >= 0]] = False
-            more = assign_to_predictions(np.where(adrift[:, None], pred, np.nan), points, gates[1],
-                                         allowed=free_points)
-            idx = np.where(more >= 0, more, idx)
         # Ambiguous two-view points: only within the tight gate of the motion prediction.
         free_points = ~trusted
         free_points[idx[idx >= 0]] = False
-        more = assign_to_predictions(np.where((idx < 0)[:, None], pred, np.nan), points, gates[1], allowed=free_points)
+        more = assign_to_predictions(np.where(((idx < 0) & ~adrift)[:, None], pred, np.nan), points, gates[1],
+                                     allowed=free_points)
         idx = np.where(more >= 0, more, idx)
         # Before the veto: a crossed pair would make their neighbours' predictions veto right labels.
         idx = self.exchange_neighbours(idx, points)

@@ -173,7 +173,13 @@ class RigidGroupRules:
         # shape test vectorised: a static take's 35 groups made this loop a third of the labelling
         # (Res16bits, 100 frames: 37 of 105 s). Same orderings, same order, same figures.
         perms = _label_orderings(g, len(have))
-        shape_ok = ~(np.abs(self.mean_dist_m[perms[:, :, None], perms[:, None, :]] - d_now).max(axis=(1, 2)) > self.shape_tol_m)
+        shape = np.abs(self.mean_dist_m[perms[:, :, None], perms[:, None, :]] - d_now).max(axis=(1, 2))
+        # The labellings that keep the shape within ``shape_tol_m``, or as well as the present one
+        # where its points bend it more (blobs of a fast hand off by 6-7 mm: c3d_racing_propulsion's
+        # right glove in frames 164 and 203 fitted no labelling within 5 mm, and GloveR1 and
+        # GloveR2 stayed exchanged, the surroundings scoring 142 against 6 for the right labels).
+        own = shape[np.flatnonzero((perms == have).all(axis=1))[0]]
+        shape_ok = ~(shape > max(self.shape_tol_m, own))
         for labels in perms[shape_ok]:
             R, t = kabsch(local[np.searchsorted(g, labels)], points[pts])
             loc = (points[idx[seen]] - t) @ R
@@ -305,6 +311,13 @@ class RigidGroupRules:
                 if len(inside) != 1 or any(d is None or (d <= 1.5 and k != inside[0]) for k, d in enumerate(dev)):
                     continue
                 score, labels, pts = rivals[inside[0]]
+            elif (dev := self._partner_deviation(gi, labels, pts, idx, points)) is not None and dev > PARTNER_OUTSIDE:
+                # A lone placement that turns the group relative to a partner beyond anything the
+                # trial had is another group's points: c3d_racing_propulsion's right scapula triad,
+                # two of its markers seen, fitted the left triad's three points with only Head1
+                # (56 mm spread) around it, and without this both triads came back mirrored for frames 0-23
+                # (the run's RMSE 34 mm).
+                continue
             idx[have] = -1
             idx[labels] = pts
         return idx
