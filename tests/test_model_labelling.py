@@ -510,7 +510,7 @@ def test_a_rigid_group_lost_whole_is_found_again_by_its_shape(first: int, last: 
     lost in frames 103-110, was never labelled again, and the left forearm triad, lost in frames
     41-42 and labelled backward from frame 59, came back on the glove's points (and the
     epicondyle's label on the forearm's), a one-segment slide. Now such a group takes no point by
-    motion (within the tight gate until h30), and comes back where its shape appears once among the free
+    motion (within the tight gate before 4b38eb3), and comes back where its shape appears once among the free
     points with its surroundings where the trial had them. Before (0ea1bf3): ``before`` of the
     group's reconstructed samples labelled right (now 64 of 76, and 142 of 146 with none off);
     over every marker 1105 of 1282 (41 more than 20 mm off) in frames 95-139 and 969 of 1151
