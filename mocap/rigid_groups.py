@@ -46,8 +46,9 @@ class RigidGroupRules:
     def _learn_partners(self, xyz: np.ndarray, ok: np.ndarray) -> list[list[tuple[int, np.ndarray, float]]]:
         """For each rigid group, the groups within 0.3 m whose orientation relative to it stayed
         within 90 deg of its mean over the trial: ``(other group, mean relative rotation, largest
-        deviation (rad), at least the two groups' turn noise together, :meth:`_turn_noise`)``. A forearm triad and its glove's turn at the wrist up to 77-84 deg from
-        their mean relative orientation (c3d_racing_propulsion); a glove triad's two labels
+        deviation (rad), at least the two groups' turn noise together, :meth:`_turn_noise`)``. A
+        forearm triad and its glove's turn at the wrist up to 77-84 deg from their mean relative
+        orientation (c3d_racing_propulsion); a glove triad's two labels
         exchanged turn it 180 deg about an axis in its plane, at least 96 deg from it."""
         rot = []
         for g, local in zip(self.rigid_groups, self.group_local):
