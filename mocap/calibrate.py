@@ -265,6 +265,11 @@ def calibrate_from_observations(observations: BoardObservations, *, wand: WandSp
         the world (origin at the board origin, z up).
     world_camera : str, optional
         Without ``floor_view``: the camera whose frame is the world (default: reference).
+    intrinsics_options : IntrinsicsOptions, optional
+        Zhang's step per camera (default: ``IntrinsicsOptions()``).
+    ba_options : BundleAdjustmentOptions, optional
+        The bundle adjustment (default: ``BundleAdjustmentOptions()`` with the intrinsics
+        options' ``fix_aspect_ratio``, ``fix_principal_point`` and ``zero_tangent``).
     detections : mapping, optional
         Per camera, the :class:`BoardDetection` of each view, to explain failures.
     """
