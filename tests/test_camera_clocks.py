@@ -96,6 +96,7 @@ def test_each_camera_is_rendered_at_its_own_instants():
         assert np.median(own) < 0.3 and own[moved].max() < 1.0
 
 
+@pytest.mark.slow  # a rendered take end to end: seconds
 def test_unsynchronised_take_is_synchronised_from_the_markers():
     """A short webcams_unsynced take (offsets up to +-500 ms, drift up to +-100 ppm): the run
     recovers the offsets within 1 ms RMS of the truth, and its markers are far better than

@@ -56,6 +56,7 @@ def test_bad_pipeline_section_is_refused(tmp_path):
         load_scenario(p)
 
 
+@pytest.mark.slow  # a rendered take end to end: seconds
 def test_check_catches_the_worse_external_system(tmp_path):
     """The suite passes against its committed baseline with the stand-in system and fails (exit 1)
     with its noisier version."""
