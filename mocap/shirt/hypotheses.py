@@ -97,7 +97,7 @@ class TrackerHypotheses:
         return out
 
     def _arm_hypotheses(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, ranked: dict,
-                        neighbours: bool = True) -> np.ndarray:
+                        neighbours: bool = True, solve_unchanged: bool = True) -> np.ndarray:
         """Each arm of pose ``q`` replaced by the arm of every database neighbour, the blend and the previous pose:
         the best-agreeing arms (or ``q`` itself) are solved again with loose priors and replace ``q`` when the
         result agrees better.
@@ -133,6 +133,8 @@ class TrackerHypotheses:
         # frames the previous pose is suspect, and the loose solve is kept only if it agrees
         # better (skipping it lowered the CI office run's assisted-correct rate 0.40 -> 0.39)
         if start is None:
+            if not solve_unchanged:
+                return q
             start = q
         res_q = self._loose_solve(start, est, lin, sil, self._loose_priors(est.q_blend), p.correspondence_passes)
         score = self._agreement([res_q], est.cameras, seen)[0][0]

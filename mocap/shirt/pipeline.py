@@ -279,8 +279,15 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
                 flagged = {side: arms for side, (arms, worse) in ranked.items() if worse}
                 if self._frames == 0 or lost:
                     q = self._arm_hypotheses(q, est, lin, sil, {side: arms for side, (arms, _) in ranked.items()}, neighbours=True)
-                elif flagged:
-                    q = self._arm_hypotheses(q, est, lin, sil, flagged, neighbours=False)
+                elif flagged or (p.arm_search_verify_all and ranked):
+                    # the arm search's screen (arm_search_margin) is not needed to verify its best
+                    # arms by render: under motion blur a fast forearm's step-1 pixels are a thin
+                    # smear, every arm scores within 0.01-0.02 shirt sizes of every other, and a wrong
+                    # arm held by the motion prior was never put to the render (issue 18:
+                    # shirt_jumping_jacks seed 4, frames 22-59: own arm 0.020-0.035, the true one
+                    # 0.013-0.016; its render agreement +0.01..+0.05 over the estimate's)
+                    arms = {side: a for side, (a, _) in ranked.items()} if p.arm_search_verify_all else flagged
+                    q = self._arm_hypotheses(q, est, lin, sil, arms, neighbours=False, solve_unchanged=bool(flagged))
         else:
             q = q_b.copy()
         T["ik"] = (time.perf_counter() - t) * 1e3

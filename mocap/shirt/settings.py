@@ -120,6 +120,14 @@ class ShirtPipelineParams:
         scores ``arm_search_margin`` shirt sizes better than the pose's own arm, the
         ``arm_search_top`` best candidates of that arm are verified and solved as in
         ``arm_hypotheses`` (also on the first frame and lost frames, with the neighbours).
+    arm_search_verify_all : bool
+        With ``arm_search``: every frame, the ``arm_search_top`` best candidates of each arm are
+        verified by render (as in ``arm_hypotheses``) even when none beats the pose's own arm by
+        ``arm_search_margin``; the pose is then solved again loosely only from a winning arm, or
+        from itself where the margin was met.  An addition: under a 20 ms shutter's blur the
+        screen's margin was never met while the motion prior held a wrong forearm for the rest of
+        the take (shirt_jumping_jacks, both methods, about half the seeds), and the render
+        agreement with step 1 takes the true arm back.
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
@@ -189,6 +197,7 @@ class ShirtPipelineParams:
     arm_search_arms: int = 400
     arm_search_margin: float = 0.03
     arm_search_top: int = 3
+    arm_search_verify_all: bool = True
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
