@@ -61,10 +61,10 @@ class ShirtPipelineParams:
         classified poorly (a change of light): the paper updates ``W`` on every frame,
         but in steady light consecutive estimates barely differ.
     white_balance_first_frame : bool
-        Step 5 also on the first frame (its lock-on passes).  Off: the first frame's ``W`` is
-        the one of its labelled pixels (the user's scribbles on that very frame), and a pose
-        still locking on, far off, would turn it for the next pass and the frames after
-        (shirt_jumping_jacks seed 7: the take lost for 45 frames).
+        Step 5 also after each lock-on pass of the first frame but the last.  Off: the first
+        frame's ``W`` is the one of its labelled pixels (the user's scribbles on that very
+        frame) until its last pass; a first pass far off turned it for the next pass and the
+        frames after (shirt_jumping_jacks seed 7: the take lost for 45 frames).
     render_size : int
         Resolution of the blended pose's id map in each crop (step 3's distance
         transforms and the IK's anchors).
