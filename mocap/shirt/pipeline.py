@@ -172,7 +172,6 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         self._first_fraction: list[float | None] = [None] * C
         self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
         self._frames = 0  # frames finished
-        self._in_first_frame = False  # process() is on a lock-on pass of the take's first frame, not its last
         self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
         self._cells: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (foreground pixels, their cells in step 3's maps)
         self._root_active = np.zeros(UPPER_NV, bool)
@@ -219,22 +218,16 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         the recovery of a lost frame, locks on as the second frame of the take did.
         """
         p = self.params
-        # (the first frame is the labelled one: step 5 leaves its W until its last pass, see finish)
-        self._in_first_frame = self._frames == 0
-        try:
-            if self._frames == 0 and p.ik_priors and p.lock_on_passes > 1:
-                first = self._process(images)
-                if not np.all(np.isfinite(first.q)):
-                    return first
-                for i in range(p.lock_on_passes - 1):
-                    self._in_first_frame = i < p.lock_on_passes - 2
-                    est = self._process(images)
-                    for s, v in first.timings_ms.items():
-                        est.timings_ms[s] += v
-                return est
-            return self._process(images)
-        finally:
-            self._in_first_frame = False
+        if self._frames == 0 and p.ik_priors and p.lock_on_passes > 1:
+            first = self._process(images)
+            if not np.all(np.isfinite(first.q)):
+                return first
+            for _ in range(p.lock_on_passes - 1):
+                est = self._process(images)
+                for s, v in first.timings_ms.items():
+                    est.timings_ms[s] += v
+            return est
+        return self._process(images)
 
     def _process(self, images: list[np.ndarray]) -> FrameEstimate:
         est, cons, lin = self.observe(images)
@@ -317,14 +310,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         world = self.model.world_vertices(self.q_prev) if np.all(np.isfinite(self.q_prev)) else None
         self._prev_world = world
         # step 5 every wb_every-th frame in steady light, and on every frame whose step 1
-        # classified poorly in a camera (the light changed); not after the first frame's lock-on
-        # passes but its last: its W is the one of its own labelled pixels (the scribbles), and
-        # a pose still locking on would turn it for the next pass (issue 18: shirt_jumping_jacks
-        # seed 7, the first pass's pose 30 cm off; the second pass classified the shirt as
-        # orange, red and light grey and the take was lost for 45 frames, 34.0 cm; 1.87 cm
-        # with W kept until the last pass's pose)
-        if (p.adaptive_white_balance and (p.white_balance_first_frame or not self._in_first_frame)
-                and (self._frames % p.wb_every == 0 or any(self._poor))):
+        # classified poorly in a camera (the light changed)
+        if p.adaptive_white_balance and (self._frames % p.wb_every == 0 or any(self._poor)):
             cams = [ci for ci, o in enumerate(obs) if o.tiny is not None and lin[ci] is not None]
             rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, p.wb_size)) for ci in cams], world)
             for ci, rend in zip(cams, rends):

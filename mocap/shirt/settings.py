@@ -60,11 +60,6 @@ class ShirtPipelineParams:
         Step 5 runs on every ``wb_every``-th frame, and on every frame where step 1
         classified poorly (a change of light): the paper updates ``W`` on every frame,
         but in steady light consecutive estimates barely differ.
-    white_balance_first_frame : bool
-        Step 5 also after each lock-on pass of the first frame but the last.  Off: the first
-        frame's ``W`` is the one of its labelled pixels (the user's scribbles on that very
-        frame) until its last pass; a first pass far off turned it for the next pass and the
-        frames after (shirt_jumping_jacks seed 7: the take lost for 45 frames).
     render_size : int
         Resolution of the blended pose's id map in each crop (step 3's distance
         transforms and the IK's anchors).
@@ -176,7 +171,6 @@ class ShirtPipelineParams:
     work_size: int = 144
     wb_size: int = 64
     wb_every: int = 1
-    white_balance_first_frame: bool = False
     render_size: int = 96
     distance_reduce: int = 2
     gaussian_threshold: float = 3.0
