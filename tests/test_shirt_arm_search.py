@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from mocap.calib.synthetic import look_at
 from mocap.calibration import Camera
 from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
+from mocap.shirt.hypotheses import TrackerHypotheses
+from mocap.shirt.settings import ShirtPipelineParams
 from mocap.shirt.shirt_model import CropView
 from simbench.pipelines.shirt_database import shirt_model
 from simbench.scenes.anthropometry import BodyParams
@@ -72,8 +76,6 @@ class _Verifier:
     returns its start and records it."""
 
     def __init__(self, good):
-        from mocap.shirt.settings import ShirtPipelineParams
-
         self.params = ShirtPipelineParams()
         self.q_prev = None
         self.good = np.asarray(good, float)
@@ -95,10 +97,6 @@ def test_arm_verification_takes_a_better_agreeing_candidate_and_skips_the_loose_
     search's best arms are verified by render even when none passed its screen; a candidate that agrees
     better is solved from and kept, and on a frame the screen did not flag, no candidate winning leaves
     the pose as it was, without a loose solve (the frames of the fixed-light scenarios)."""
-    from types import SimpleNamespace
-
-    from mocap.shirt.hypotheses import TrackerHypotheses
-
     class V(_Verifier, TrackerHypotheses):
         pass
 
