@@ -10,7 +10,7 @@ import pytest
 from mocap.calib.synthetic import look_at
 from mocap.calibration import Camera
 from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
-from mocap.shirt.hypotheses import TrackerHypotheses
+from mocap.shirt.hypotheses import ARMS, TrackerHypotheses
 from mocap.shirt.settings import ShirtPipelineParams
 from mocap.shirt.shirt_model import CropView
 from simbench.pipelines.shirt_database import shirt_model
@@ -72,7 +72,7 @@ def test_a_colour_with_no_pixel_is_far_everywhere():
 
 class _Verifier:
     """The tracker's arm verification (:class:`mocap.shirt.hypotheses.TrackerHypotheses`) with the renders
-    stubbed: a pose agrees with step 1 by 0.5, plus 0.1 when its left arm is ``good``; the loose solve
+    stubbed (whole poses and arm variants alike): a pose agrees with step 1 by 0.5, plus 0.1 when its left arm is ``good``; the loose solve
     returns its start and records it."""
 
     def __init__(self, good):
@@ -81,8 +81,15 @@ class _Verifier:
         self.good = np.asarray(good, float)
         self.solved = []
 
-    def _agreement(self, poses, obs, seen):
+    def _step1_cells(self, obs, seen):
+        return {}, np.zeros(9, int)
+
+    def _agreement(self, poses, obs, seen, cells=None):
         return [0.5 + 0.1 * float(np.allclose(q[10:14], self.good)) for q in poses], [{} for _ in poses]
+
+    def _arm_agreement(self, q, side, arms, obs, seen, cells=None):
+        sl = ARMS[side]
+        return self._agreement([np.concatenate([q[:sl.start], a, q[sl.stop:]]) for a in arms], obs, seen)[0]
 
     def _loose_priors(self, q_blend, previous=True):
         return []

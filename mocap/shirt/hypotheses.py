@@ -114,7 +114,8 @@ class TrackerHypotheses:
             cands = [nb.hinges for o in est.cameras if (nb := o.neighbours) is not None]
             cands += [est.q_blend[None, 7:]] + ([self.q_prev[None, 7:]] if self.q_prev is not None else [])
         hinges = np.unique(np.concatenate(cands), axis=0) if cands else np.zeros((0, len(q) - 7))
-        score_q = self._agreement([q], est.cameras, seen)[0][0]
+        cells = self._step1_cells(est.cameras, seen)
+        score_q = None
         start = None
         for side in (ARMS if neighbours else ranked):
             sl = ARMS[side]
@@ -123,9 +124,15 @@ class TrackerHypotheses:
                 arms = np.unique(np.concatenate([arms, ranked[side]]), axis=0)
             if not len(arms):
                 continue
-            trials = np.repeat((q if start is None else start)[None], len(arms), axis=0)
+            base = q if start is None else start
+            trials = np.repeat(base[None], len(arms), axis=0)
             trials[:, sl] = arms
-            scores, _ = self._agreement(list(trials), est.cameras, seen)
+            if score_q is None:
+                # (q's own arm drawn as one more variant: the pixels of q's own render, one still part for both)
+                both = self._arm_agreement(q, side, np.concatenate([q[None, sl], arms]), est.cameras, seen, cells)
+                score_q, scores = both[0], both[1:]
+            else:
+                scores = self._arm_agreement(base, side, arms, est.cameras, seen, cells)
             i = int(np.argmax(scores))
             if scores[i] > score_q + p.hypothesis_margin:
                 start = trials[i]
@@ -136,21 +143,48 @@ class TrackerHypotheses:
             if not solve_unchanged:
                 return q
             start = q
+        if score_q is None:
+            score_q = self._agreement([q], est.cameras, seen, cells)[0][0]
         res_q = self._loose_solve(start, est, lin, sil, self._loose_priors(est.q_blend), p.correspondence_passes)
-        score = self._agreement([res_q], est.cameras, seen)[0][0]
+        score = self._agreement([res_q], est.cameras, seen, cells)[0][0]
         return res_q if score > score_q + p.hypothesis_margin else q
 
-    def _agreement(self, poses: list[np.ndarray], obs: list[CameraObservation], seen: list[int]) -> tuple[list[float], list[dict]]:
+    def _agreement(self, poses: list[np.ndarray], obs: list[CameraObservation], seen: list[int],
+                   cells: tuple[dict, np.ndarray] | None = None) -> tuple[list[float], list[dict]]:
         """How well each pose explains the step-1 classification of every camera.
 
         Agreement: the fraction of classified pixels (over all cameras) that the pose's id
         map, at the reduced resolution, shows with their colour within one cell.  Step 1
         does not depend on any pose, so poses are compared on the same evidence.
 
+        ``cells``: :meth:`_step1_cells` of ``obs`` and ``seen`` when the caller has them.
+
         Returns the scores and each pose's renders ``{camera: Rendered}``.
         """
+        cells, offsets = self._step1_cells(obs, seen) if cells is None else cells
         r = self.params.render_size
-        # the classified pixels of every camera and their cells in the (edge-padded) render
+        scores, renders = [], []
+        for q in poses:
+            # (the previous pose's vertices are at hand from its frame)
+            world = self._prev_world if q is self.q_prev else None
+            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, r)) for ci in seen], world)
+            renders.append(dict(zip(seen, rends)))
+            scores.append(_agreement_of(rends, seen, cells, offsets))
+        return scores, renders
+
+    def _arm_agreement(self, q: np.ndarray, side: str, arms: np.ndarray, obs: list[CameraObservation], seen: list[int],
+                       cells: tuple[dict, np.ndarray] | None = None) -> list[float]:
+        """:meth:`_agreement` of pose ``q`` with its arm ``side`` set to each of ``arms (k, 4)``, the rest of the
+        body drawn once for all of them (:meth:`mocap.shirt.shirt_model.ShirtModel.render_variants`: the same pixels)."""
+        cells, offsets = self._step1_cells(obs, seen) if cells is None else cells
+        r = self.params.render_size
+        variants = self.model.render_variants(q, ARMS[side], arms, [(self.cameras[ci], reduced_view(obs[ci].view, r)) for ci in seen])
+        return [_agreement_of(rends, seen, cells, offsets) for rends in variants]
+
+    def _step1_cells(self, obs: list[CameraObservation], seen: list[int]) -> tuple[dict, np.ndarray]:
+        """Per camera of ``seen`` with classified pixels, their cells in the edge-padded render
+        (flat indices) and colours; and the 3 x 3 neighbourhood as flat offsets in that map."""
+        r = self.params.render_size
         cells = {}
         for ci in seen:
             o = obs[ci]
@@ -164,23 +198,20 @@ class TrackerHypotheses:
             cx = np.minimum((xs * r) // o.view.size, r - 1)
             cells[ci] = ((cy + 1) * (r + 2) + cx + 1, col[on])
         # the 3x3 neighbourhood as flat offsets in the padded map
-        offsets = np.array([-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3])
-        scores, renders = [], []
-        for q in poses:
-            hit = tot = 0
-            renders.append({})
-            # (the previous pose's vertices are at hand from its frame)
-            world = self._prev_world if q is self.q_prev else None
-            rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, r)) for ci in seen], world)
-            for ci, rend in zip(seen, rends):
-                renders[-1][ci] = rend
-                if ci not in cells:
-                    continue
-                base, col = cells[ci]
-                hit += _hits(edge_padded(rend.colour).ravel(), base, col, offsets)
-                tot += len(col)
-            scores.append(hit / max(tot, 1))
-        return scores, renders
+        return cells, np.array([-(r + 2) - 1, -(r + 2), -(r + 2) + 1, -1, 0, 1, r + 1, r + 2, r + 3])
+
+
+def _agreement_of(rends: list, seen: list[int], cells: dict, offsets: np.ndarray) -> float:
+    """The fraction of the classified pixels ``cells`` (:meth:`TrackerHypotheses._step1_cells`) whose colour the
+    renders ``rends`` (one per camera of ``seen``) show within one cell."""
+    hit = tot = 0
+    for ci, rend in zip(seen, rends):
+        if ci not in cells:
+            continue
+        base, col = cells[ci]
+        hit += _hits(edge_padded(rend.colour).ravel(), base, col, offsets)
+        tot += len(col)
+    return hit / max(tot, 1)
 
 
 @numba.njit(cache=True, nogil=True)

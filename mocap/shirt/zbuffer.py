@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["NEAR_M", "rasterise_faces"]
+__all__ = ["NEAR_M", "rasterise_faces", "rasterise_faces_over"]
 
 #: Vertices nearer than this to the camera (metres) drop their triangles.
 NEAR_M = 0.05
@@ -62,12 +62,45 @@ def rasterise_faces(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, width:
         return out.reshape(shape)
     base = np.zeros(len(faces), np.int64) if face_layer is None else np.asarray(face_layer, np.int64) * npix
     _rasterise(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(depth, np.float64), np.ascontiguousarray(faces, np.int64),
-               int(width), int(height), bool(cull_back), base, out)
+               int(width), int(height), bool(cull_back), base, out, np.full(out.size, np.inf), np.arange(len(faces), dtype=np.int32))
     return out.reshape(shape)
 
 
+def rasterise_faces_over(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, face_ids: np.ndarray,
+                         face_layer: np.ndarray, face_map: np.ndarray, depth_map: np.ndarray, cull_back: bool = True) -> None:
+    """Draw triangles into existing z-buffered images, in place: more of a scene over what is drawn.
+
+    Parameters
+    ----------
+    uv, depth, faces, cull_back
+        As :func:`rasterise_faces`.
+    face_ids : (T,) int32
+        The id written for each triangle (e.g. its index in the whole mesh).
+    face_layer : (T,) int
+        Image of ``face_map`` each triangle is drawn into.
+    face_map : (L, H, W) int32, C-contiguous
+        Ids drawn so far (-1 none); updated in place.
+    depth_map : (L, H, W) float64, C-contiguous
+        Their depths (``inf`` none); updated in place.
+
+    Drawing a mesh in two parts this way gives the pixels of one :func:`rasterise_faces`
+    call over the whole mesh wherever no triangle of one part ties in depth to the last
+    bit with one of the other (the tie would go the other way); the shirt's separate
+    bodies do not share vertices.
+    """
+    if not (face_map.flags.c_contiguous and depth_map.flags.c_contiguous and face_map.shape == depth_map.shape
+            and face_map.dtype == np.int32 and depth_map.dtype == np.float64 and face_map.ndim == 3):
+        raise ValueError("rasterise_faces_over: face_map (L, H, W) int32 and depth_map float64 of one shape, C-contiguous")
+    if len(faces) == 0:
+        return
+    L, H, W = face_map.shape
+    _rasterise(np.ascontiguousarray(uv, np.float64), np.ascontiguousarray(depth, np.float64), np.ascontiguousarray(faces, np.int64),
+               int(W), int(H), bool(cull_back), np.asarray(face_layer, np.int64) * (H * W), face_map.reshape(-1),
+               depth_map.reshape(-1), np.ascontiguousarray(face_ids, np.int32))
+
+
 @numba.njit(cache=True, nogil=True)
-def _rasterise(uv, depth, faces, width, height, cull_back, base, out):  # pragma: no cover
+def _rasterise(uv, depth, faces, width, height, cull_back, base, out, zbuf, ids):  # pragma: no cover
     """Set-up of every triangle (as the vectorised form had it, operation for operation) and :func:`_zbuffer`."""
     n = len(faces)
     keep = np.zeros(n, np.bool_)
@@ -129,11 +162,11 @@ def _rasterise(uv, depth, faces, width, height, cull_back, base, out):  # pragma
         za[f] = ((Z[1] - Z[0]) * (Y[2] - Y[0]) - (Z[2] - Z[0]) * (Y[1] - Y[0])) * w
         zb[f] = ((X[1] - X[0]) * (Z[2] - Z[0]) - (X[2] - X[0]) * (Z[1] - Z[0])) * w
         zc[f] = Z[0] + za[f] * (fxmin - X[0]) + zb[f] * (fymin - Y[0])
-    _zbuffer(keep, tier, nx, ny, xmin, ymin, base, ec, ea, eb, zc, za, zb, width, out)
+    _zbuffer(keep, tier, nx, ny, xmin, ymin, base, ec, ea, eb, zc, za, zb, width, out, zbuf, ids)
 
 
 @numba.njit(cache=True, nogil=True)
-def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, width, out):  # pragma: no cover
+def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, width, out, zbuf, ids):  # pragma: no cover
     """The z-buffer of :func:`rasterise_faces`, compiled: a loop over triangles and the pixel centres of their boxes.
 
     Why compiled: the vectorised form spends most of its time building and filtering
@@ -145,8 +178,8 @@ def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, w
 
     It walks the kept triangles of the set-up's arrays in place (their float32 edge
     functions converted where used), as fast as it gets without copying them out first.
+    ``zbuf`` holds the depths drawn so far (``inf`` where none) and ``ids[f]`` is written for triangle ``f``.
     """
-    zbuf = np.full(out.size, np.inf)
     tol32 = np.float32(-1e-6)
     for g in (2, 4, 0):
         for f in range(len(tier)):
@@ -176,4 +209,4 @@ def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, w
                     pix = base_pix[f] + (ymin[f] + cy) * width + xmin[f] + cx
                     if z <= zbuf[pix]:
                         zbuf[pix] = z
-                        out[pix] = np.int32(f)
+                        out[pix] = ids[f]
