@@ -10,7 +10,8 @@ import pytest
 from mocap.calib.synthetic import look_at
 from mocap.calibration import Camera
 from mocap.shirt.arm_search import ArmSearch, colour_distance_maps
-from mocap.shirt.hypotheses import ARMS, TrackerHypotheses
+from mocap.shirt.hypotheses import ARMS, RankedArms, TrackerHypotheses
+from mocap.shirt.pipeline import ShirtTracker
 from mocap.shirt.settings import ShirtPipelineParams
 from mocap.shirt.shirt_model import CropView
 from simbench.pipelines.shirt_database import shirt_model
@@ -45,7 +46,7 @@ def test_the_true_arm_scores_best_and_a_wrong_arm_is_told_apart(model):
     for cam in _cameras():
         colour = model.render_camera(q_true, cam, view).colour
         assert (colour >= 0).sum() > 1000
-        shots.append((cam, view, colour_distance_maps(colour, search.colours), 60.0))
+        shots.append((cam, view, colour_distance_maps(colour, search.colours["l"]), 60.0))
     truth = search.score(q_true, "l", shots)
     assert truth.current < 0.02  # points on hidden faces (behind the torso) cost up to the truncation
     q_wrong = q_true.copy()
@@ -122,3 +123,70 @@ def test_arm_verification_takes_a_better_agreeing_candidate_and_skips_the_loose_
     assert len(v.solved) == 1
     np.testing.assert_allclose(out[10:14], good)
     np.testing.assert_array_equal(np.delete(out, range(10, 14)), np.delete(q, range(10, 14)))
+
+
+class _ArmChecks:
+    """What :meth:`ShirtTracker._check_arms` asks of the tracker, stubbed: the screen gives each arm the gap
+    of ``gaps`` and records which arms it scored; the verification records what it was given."""
+
+    def __init__(self, gaps, frame, **params):
+        self.params = ShirtPipelineParams(**params)
+        self._frames = frame
+        self.gaps = gaps
+        self.screened, self.verified = [], []
+
+    def _ranked_arms(self, q, est, sides=tuple(ARMS)):
+        self.screened.append(tuple(sides))
+        return {s: RankedArms(np.full((3, 4), 0.1 * i), self.gaps[s]) for i, s in enumerate(sides)}
+
+    def _arm_hypotheses(self, q, est, lin, sil, ranked, neighbours=True, solve_unchanged=True):
+        self.verified.append((sorted(ranked), neighbours, solve_unchanged))
+        return q
+
+
+def test_the_arm_checks_render_only_the_doubted_arms():
+    """Issue 18's 33 ms: an arm is verified by render only where a candidate screens better than it
+    (arm_search_verify_gap); past arm_search_margin it is also solved again.  With arm_search_alternate
+    the screen scores one arm a frame, in turn.  The first frame and lost frames check both arms."""
+    q = np.zeros(18)
+
+    def run(t: _ArmChecks, lost: bool = False) -> _ArmChecks:
+        ShirtTracker._check_arms(t, q, None, [], {}, lost)
+        return t
+
+    t = run(_ArmChecks({"l": -0.01, "r": -0.01}, frame=0))
+    assert t.screened == [("l", "r")] and t.verified == [(["l", "r"], True, True)]
+    t = run(_ArmChecks({"l": -0.01, "r": -0.01}, frame=7), lost=True)
+    assert t.screened == [("l", "r")] and t.verified == [(["l", "r"], True, True)]
+    t = run(_ArmChecks({"l": 0.01, "r": 0.0}, frame=4))
+    assert t.screened == [("l", "r")] and t.verified == [(["l"], False, False)]   # r: no candidate screens better
+    t = run(_ArmChecks({"l": -0.01, "r": -0.02}, frame=5))
+    assert t.verified == []
+    t = run(_ArmChecks({"l": 0.05, "r": 0.02}, frame=6))
+    assert t.verified == [(["l", "r"], False, True)]                # l past the margin: solved again too
+    t = run(_ArmChecks({"l": -0.01, "r": 0.0}, frame=6, arm_search_verify_gap=-np.inf))
+    assert t.verified == [(["l", "r"], False, False)]              # session 17's every-frame verification
+    t = run(_ArmChecks({"l": 0.01, "r": 0.01}, frame=4, arm_search_alternate=True))
+    assert t.screened == [("l",)] and t.verified == [(["l"], False, False)]
+    t = run(_ArmChecks({"l": 0.01, "r": 0.01}, frame=5, arm_search_alternate=True))
+    assert t.screened == [("r",)] and t.verified == [(["r"], False, False)]
+
+
+def test_distance_maps_within_reach_are_the_whole_maps():
+    """colour_distance_maps with ``reach`` (each colour's transform over its box grown by the reach): every
+    distance below the reach is the whole map's (to float32 rounding), none of the others reads below it."""
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        colour = -np.ones((144, 144), np.int16)
+        for k in range(6):
+            for _ in range(rng.integers(0, 3)):
+                y, x = rng.integers(0, 144, 2)
+                h, w = rng.integers(1, 25, 2)
+                colour[y:y + h, x:x + w] = k
+        reach = float(rng.uniform(4.0, 40.0))
+        whole = colour_distance_maps(colour, np.arange(6))
+        near = colour_distance_maps(colour, np.arange(6), reach=reach)
+        inside = whole < reach
+        np.testing.assert_allclose(near[inside], whole[inside], rtol=1e-6, atol=1e-5)
+        assert np.all(near[~inside] >= reach)
+        assert inside.sum() > 100

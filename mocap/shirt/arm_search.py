@@ -31,14 +31,17 @@ import numpy as np
 
 from mocap.calibration import Camera
 from mocap.shirt.shirt_model import CropView, ShirtModel
+from mocap.shirt.zbuffer import NEAR_M
 
-__all__ = ["ARM_SIDES", "ArmSearch", "ArmScores", "colour_distance_maps"]
+__all__ = ["ARM_SIDES", "TRUNCATE", "ArmSearch", "ArmScores", "colour_distance_maps"]
 
 ARM_SIDES: tuple[str, ...] = ("l", "r")
 """The arms, in the order of the hinges (:data:`mocap.shirt.kinematics.UPPER_HINGES`)."""
 
 _ARM_HINGES = {"l": slice(3, 7), "r": slice(7, 11)}  # shoulder x y z, elbow, in the 11 hinges
 _CACHE_ARMS = 4096  # arms whose sample points ArmSearch keeps, per side
+TRUNCATE = 0.25
+"""A point's cost is truncated at this many shirt sizes (:meth:`ArmSearch.score`)."""
 
 
 @dataclass(frozen=True)
@@ -51,18 +54,33 @@ class ArmScores:
     arms: np.ndarray
 
 
-def colour_distance_maps(colour: np.ndarray, colours: np.ndarray) -> np.ndarray:
+def colour_distance_maps(colour: np.ndarray, colours: np.ndarray, reach: float | None = None) -> np.ndarray:
     """``(len(colours), h, w)`` float32: distance (working pixels) from every pixel of a
     classified map ``colour (h, w)`` (-1 unclassified) to the nearest pixel of each colour
-    in ``colours``; a colour with no pixel is ``h + w`` everywhere."""
+    in ``colours``; a colour with no pixel is ``h + w`` everywhere.
+
+    With ``reach``, distances of at least ``reach`` may read ``h + w``: each colour's transform
+    runs only over its pixels' box grown by ``reach`` (an arm's colour covers a small part of the
+    crop; the screen truncates its costs there anyway).  Inside that box the values are the whole
+    map's (the 3 x 3 chamfer distance: a shortest path between two pixels stays in their box),
+    to float32 rounding; outside it the chamfer distance is at least 0.955 times the box distance.
+    """
     h, w = colour.shape
     out = np.empty((len(colours), h, w), np.float32)
+    pad = None if reach is None else int(np.ceil(reach / 0.955)) + 1
     for i, k in enumerate(colours):
-        m = colour != k
-        if m.all():
+        on = colour == k
+        rows = np.flatnonzero(on.any(axis=1))
+        if rows.size == 0:
             out[i] = float(h + w)
+        elif pad is None:
+            out[i] = cv2.distanceTransform((~on).view(np.uint8), cv2.DIST_L2, 3)
         else:
-            out[i] = cv2.distanceTransform(m.astype(np.uint8), cv2.DIST_L2, 3)
+            cols = np.flatnonzero(on.any(axis=0))
+            y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, h)
+            x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, w)
+            out[i] = float(h + w)
+            out[i, y0:y1, x0:x1] = cv2.distanceTransform(np.ascontiguousarray(~on[y0:y1, x0:x1]).view(np.uint8), cv2.DIST_L2, 3)
     return out
 
 
@@ -102,9 +120,9 @@ class ArmSearch:
                     part += [j] * len(sel)
                     col += [int(model.patch_colour[patch])] * len(sel)
             self._points[s] = (np.asarray(part), np.concatenate(pts), np.asarray(col))
-        # the colours the arms' points score against (a distance transform each per camera and
-        # frame): the arms' own, 6 of the shirt's 10
-        self.colours = np.unique(np.concatenate([self._points[s][2] for s in ARM_SIDES]))
+        # the colours each arm's points score against (a distance transform each per camera and
+        # frame): the arm's own, 3 of the shirt's 10 (6 for both arms)
+        self.colours = {s: np.unique(self._points[s][2]) for s in ARM_SIDES}
         self._bodies = {s: ("thorax", f"upperarm_{s}", f"forearm_{s}") for s in ARM_SIDES}
         self._cache: dict[str, dict[bytes, np.ndarray]] = {s: {} for s in ARM_SIDES}
         self._fixed_rel = {s: self._compute_in_thorax(s, self.fixed[s]) for s in ARM_SIDES}
@@ -151,11 +169,11 @@ class ArmSearch:
         return out
 
     def score(self, q: np.ndarray, side: str, shots: list[tuple[Camera, CropView, np.ndarray, float]],
-              extra_arms: np.ndarray | None = None, truncate: float = 0.25) -> ArmScores:
+              extra_arms: np.ndarray | None = None, truncate: float = TRUNCATE) -> ArmScores:
         """Scores of the arm ``side`` of pose ``q (18,)`` and of every candidate arm on ``q``'s thorax.
 
         ``shots`` : per camera ``(camera, crop view, distance maps (K, h, w) from
-        :func:`colour_distance_maps` over :attr:`colours`, shirt size in working pixels)``.
+        :func:`colour_distance_maps` over ``colours[side]``, shirt size in working pixels)``.
         ``extra_arms`` : ``(M, 4)`` more candidates (e.g. the database neighbours of this frame).
         Each point costs its distance in shirt sizes, truncated at ``truncate``; a point
         outside a crop costs ``truncate``.
@@ -166,11 +184,21 @@ class ArmSearch:
         rel = np.concatenate([self._in_thorax(side, np.concatenate(arms)), self._fixed_rel[side]])
         all_arms = np.concatenate(arms + [self.fixed[side]])
         R, p = self.kin.placements(q, ("thorax",))
-        world = rel @ R[0].T + p[0]                          # (N, P, 3)
-        N, P = world.shape[:2]
-        col_index = np.searchsorted(self.colours, self._points[side][2])
+        N, P = rel.shape[:2]
+        col_index = np.searchsorted(self.colours[side], self._points[side][2])
         total = np.zeros(N)
+        world = None
         for cam, view, dmaps, size in shots:
+            K = cam.K
+            if not np.any(cam.dist != 0) and K[0, 1] == 0 and K[1, 0] == 0:
+                # a pinhole: thorax -> camera in one transform, projection and costs in one compiled pass
+                # (the numpy form's passes over all candidates' points were most of the screen's cost)
+                M = cam.R @ R[0]
+                total += _arm_costs(np.ascontiguousarray(rel), M, cam.R @ p[0] + cam.t,
+                                    K[0, 0], K[1, 1], K[0, 2], K[1, 2], float(view.x0), float(view.y0), float(view.scale),
+                                    col_index, dmaps, np.float32(max(size, 1.0)), np.float32(truncate), float(truncate))
+                continue
+            world = rel @ R[0].T + p[0] if world is None else world   # (N, P, 3)
             uv, z = self.model._project(world.reshape(-1, 3), cam, view)
             # (float32 arithmetic, as numpy's on the float32 maps with Python floats)
             d = _point_costs(uv, z, col_index, dmaps, np.float32(max(size, 1.0)), np.float32(truncate), float(truncate))
@@ -198,3 +226,32 @@ def _point_costs(uv, z, col_index, dmaps, size, truncate32, truncate):  # pragma
         else:
             d[t] = truncate
     return d
+
+
+@numba.njit(cache=True, nogil=True)
+def _arm_costs(rel, M, b, fx, fy, cx, cy, x0, y0, scale, col_index, dmaps, size, truncate32, truncate):  # pragma: no cover
+    """Mean cost ``(N,)`` of each arm's points ``rel (N, P, 3)`` (thorax frame) seen by a pinhole camera:
+    ``Xc = M x + b``, pixel ``(fx X/Z + cx, fy Y/Z + cy)`` in the crop view ``((u - x0) / scale, ...)``, then the
+    cost of :func:`_point_costs` (``Z`` at most :data:`mocap.shirt.zbuffer.NEAR_M` divides as 1, as the model's projection)."""
+    N, P = rel.shape[0], rel.shape[1]
+    h, w = dmaps.shape[1], dmaps.shape[2]
+    out = np.empty(N)
+    for n in range(N):
+        acc = 0.0
+        for t in range(P):
+            X = rel[n, t, 0]
+            Y = rel[n, t, 1]
+            Z = rel[n, t, 2]
+            xc = M[0, 0] * X + M[0, 1] * Y + M[0, 2] * Z + b[0]
+            yc = M[1, 0] * X + M[1, 1] * Y + M[1, 2] * Z + b[1]
+            zc = M[2, 0] * X + M[2, 1] * Y + M[2, 2] * Z + b[2]
+            zs = zc if zc > NEAR_M else 1.0
+            x = np.rint(((xc / zs) * fx + cx - x0) / scale)
+            y = np.rint(((yc / zs) * fy + cy - y0) / scale)
+            if x >= 0 and x < w and y >= 0 and y < h and zc > 0:
+                v = dmaps[col_index[t], np.int64(y), np.int64(x)] / size
+                acc += truncate32 if v > truncate32 else v
+            else:
+                acc += truncate
+        out[n] = acc / P
+    return out

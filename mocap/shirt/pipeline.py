@@ -275,19 +275,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             if p.ik_priors and p.lock_on_yaws and self._frames == 0:
                 q = self._root_hypotheses(q, est, lin, sil)
             if p.ik_priors and p.arm_hypotheses:
-                ranked = self._ranked_arms(q, est)
-                flagged = {side: arms for side, (arms, worse) in ranked.items() if worse}
-                if self._frames == 0 or lost:
-                    q = self._arm_hypotheses(q, est, lin, sil, {side: arms for side, (arms, _) in ranked.items()}, neighbours=True)
-                elif flagged or (p.arm_search_verify_all and ranked):
-                    # the arm search's screen (arm_search_margin) is not needed to verify its best
-                    # arms by render: under motion blur a fast forearm's step-1 pixels are a thin
-                    # smear, every arm scores within 0.01-0.02 shirt sizes of every other, and a wrong
-                    # arm held by the motion prior was never put to the render (issue 18:
-                    # shirt_jumping_jacks seed 4, frames 22-59: own arm 0.020-0.035, the true one
-                    # 0.013-0.016; its render agreement +0.01..+0.05 over the estimate's)
-                    arms = {side: a for side, (a, _) in ranked.items()} if p.arm_search_verify_all else flagged
-                    q = self._arm_hypotheses(q, est, lin, sil, arms, neighbours=False, solve_unchanged=bool(flagged))
+                q = self._check_arms(q, est, lin, sil, lost)
         else:
             q = q_b.copy()
         T["ik"] = (time.perf_counter() - t) * 1e3

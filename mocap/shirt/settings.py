@@ -128,6 +128,19 @@ class ShirtPipelineParams:
         screen's margin was never met while the motion prior held a wrong forearm for the rest of
         the take (shirt_jumping_jacks, both methods, about half the seeds), and the render
         agreement with step 1 takes the true arm back.
+    arm_search_verify_gap : float
+        With ``arm_search_verify_all``: only an arm whose best candidate screens this many shirt
+        sizes better than the arm itself is verified (0: any candidate better; ``-inf``: every
+        frame).  Where the screen ranks the pose's own arm first the render rarely disagrees, and
+        those arms were two thirds of the renders (issue 18's 33 ms per frame): at 0 the seed
+        tables' full method read the same on every seed of shirt_office, shirt_outdoor,
+        shirt_tungsten_off and shirt_jumping_jacks, and on 7 of 10 of shirt_walk_lamp.
+    arm_search_alternate : bool
+        With ``arm_search``: after the first frame, on frames that are not lost, the screen
+        scores one arm a frame, left and right in turn (a third less of the arm checks' cost;
+        a wrong arm is put to the render a frame later at most).  Off: it lost forearms under
+        the blur of shirt_jumping_jacks (seeds 1-10 median 2.38 -> 2.62 cm, seed 2 3.71 -> 4.86)
+        and the office baseline (seeds 2, 9, 12, 14: 2.6-2.9 -> 4.1-4.5 cm).
     min_patch_pixels : int
         A patch needs this many classified working pixels to constrain the IK.
     correspondence_passes : int
@@ -198,6 +211,8 @@ class ShirtPipelineParams:
     arm_search_margin: float = 0.03
     arm_search_top: int = 3
     arm_search_verify_all: bool = True
+    arm_search_verify_gap: float = 0.0
+    arm_search_alternate: bool = False
     min_patch_pixels: int = 5
     correspondence_passes: int = 2
     absence_constraints: bool = True
