@@ -45,11 +45,18 @@ def shared_data() -> Path:
 
 
 #: Whole modules that run the bench end to end (``simbench run``, sweeps, suites, the CLIs on
-#: rendered videos, signals sent to running processes, real captures through the labelling):
-#: seconds to tens of seconds each, so they are ``slow``. Single slow tests elsewhere carry
-#: ``@pytest.mark.slow`` themselves.
+#: rendered videos, signals sent to running processes, real captures through the labelling) or
+#: render many GL frames (sensor backends, rolling shutters, calibration boards, visible-light
+#: detection on renders): seconds to tens of seconds each, so they are ``slow``. Single slow
+#: tests elsewhere carry ``@pytest.mark.slow`` themselves.
 SLOW_MODULES = frozenset({
+    "test_calibrate_rig.py",
+    "test_calibration_scene_render.py",
     "test_calibration_scene_run.py",
+    "test_capture_scenario.py",
+    "test_detection_visible.py",
+    "test_render_sensor.py",
+    "test_webcam_sensor.py",
     "test_check_real_motion.py",
     "test_check_suite.py",
     "test_exchange_adapters.py",
