@@ -238,8 +238,7 @@ class ShirtModel:
         indices offset by ``V`` per layer) and each face's layer; kept (a few renders a frame, 8144 faces each)."""
         got = self._layers.get((n, V))
         if got is None:
-            faces = (self.faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3)
-            got = self._layers[(n, V)] = (faces, np.repeat(np.arange(n), len(self.faces)))
+            got = self._layers[(n, V)] = _repeat_faces(self.faces, n, V)
         return got
 
     def _finish_layer(self, face: np.ndarray, offset: int) -> Rendered:
@@ -274,7 +273,7 @@ class ShirtModel:
         n, k = len(shots), len(values)
         P = self.world_vertices(q)
         proj = [self._project(P, c, v) for c, v in shots]
-        faces, ids, layer = self._layered_part(part, "still", n, len(P))
+        faces, ids, layer = self._layered_part(hinges, "still", n, len(P))
         face_map = np.full((n, size, size), -1, np.int32)
         depth_map = np.full((n, size, size), np.inf)
         rasterise_faces_over(np.concatenate([u for u, _ in proj]), np.concatenate([d for _, d in proj]),
@@ -292,7 +291,7 @@ class ShirtModel:
         z = np.stack([d.reshape(k, Vm) for _, d in proj], axis=1).reshape(-1)
         face_maps = np.repeat(face_map[None], k, axis=0).reshape(k * n, size, size)
         depth_maps = np.repeat(depth_map[None], k, axis=0).reshape(k * n, size, size)
-        faces, ids, layer = self._layered_part(part, "moved", k * n, len(part.vertex_index))
+        faces, ids, layer = self._layered_part(hinges, "moved", k * n, Vm)
         rasterise_faces_over(uv, z, faces, ids, layer, face_maps, depth_maps)
         return [[self._finish_layer(face_maps[i * n + c], 0) for c in range(n)] for i in range(k)]
 
@@ -323,15 +322,16 @@ class ShirtModel:
             moved_faces=local[self.faces[is_moved]], moved_ids=np.flatnonzero(is_moved).astype(np.int32))
         return got
 
-    def _layered_part(self, part: _MeshSplit, which: str, n: int, V: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """A part's faces (``which``: ``"still"`` or ``"moved"``) repeated for ``n`` layers of ``V`` vertices each,
-        their mesh ids and layers (as :meth:`_layered`); kept."""
-        key = (id(part), which, n, V)
+    def _layered_part(self, hinges: slice, which: str, n: int, V: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The faces of :meth:`_split`'s ``which`` part (``"still"`` or ``"moved"``) repeated for ``n`` layers of ``V``
+        vertices each (as :meth:`_layered`), their mesh ids and layers; kept."""
+        key = (hinges.start, hinges.stop, which, n, V)
         got = self._split_layers.get(key)
         if got is None:
+            part = self._split(hinges)
             f, i = (part.still_faces, part.still_ids) if which == "still" else (part.moved_faces, part.moved_ids)
-            got = self._split_layers[key] = ((f[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3), np.tile(i, n),
-                                             np.repeat(np.arange(n), len(f)))
+            faces, layer = _repeat_faces(f, n, V)
+            got = self._split_layers[key] = (faces, np.tile(i, n), layer)
         return got
 
     @staticmethod
@@ -463,6 +463,12 @@ def _anchor_sums(face, face_patch, face_body, centre, B, size):  # pragma: no co
         for k in range(3):
             sums[key, k] += centre[f, k]
     return n, sums
+
+
+def _repeat_faces(faces: np.ndarray, n: int, V: int) -> tuple[np.ndarray, np.ndarray]:
+    """``faces (T, 3)`` repeated for ``n`` layers of ``V`` vertices each in one rasteriser call (vertex indices
+    offset by ``V`` per layer), and each face's layer ``(n T,)``."""
+    return (faces[None] + (np.arange(n) * V)[:, None, None]).reshape(-1, 3), np.repeat(np.arange(n), len(faces))
 
 
 @numba.njit(cache=True, nogil=True)
