@@ -162,8 +162,6 @@ class TrackerHypotheses:
             if not len(arms):
                 continue
             base = q if start is None else start
-            trials = np.repeat(base[None], len(arms), axis=0)
-            trials[:, sl] = arms
             if score_q is None:
                 # (q's own arm drawn as one more variant: the pixels of q's own render, one still part for both)
                 both = self._arm_agreement(q, side, np.concatenate([q[None, sl], arms]), est.cameras, seen, cells)
@@ -172,7 +170,8 @@ class TrackerHypotheses:
                 scores = self._arm_agreement(base, side, arms, est.cameras, seen, cells)
             i = int(np.argmax(scores))
             if scores[i] > score_q + p.hypothesis_margin:
-                start = trials[i]
+                start = base.copy()
+                start[sl] = arms[i]
         # solved again with loose priors even when no arm won (from q itself): on these
         # frames the previous pose is suspect, and the loose solve is kept only if it agrees
         # better (skipping it lowered the CI office run's assisted-correct rate 0.40 -> 0.39)
