@@ -118,3 +118,35 @@ def test_a_forearm_seen_thin_at_its_end_still_counts_whole(tracker_and_camera):
     assert np.linalg.norm(centre(whole) - centre(thick_only)) > 2.0
     target = _forearm_target(base, cam, q, colour, view)
     assert np.linalg.norm(target - centre(whole)) < 1.0
+
+
+def test_step_5_keeps_no_white_balance_fitted_under_a_pose_far_off(tracker_and_camera):
+    """Issue 18, shirt_jumping_jacks seed 7: after the first lock-on pass, whose pose was far off, step 5
+    fitted W to the trousers and the set under that pose's id map (W = 0.13 I: every pixel then read as
+    the black patch) and the take was lost (34 cm RMS). A W under which less than ``wb_min_agreement`` of
+    the labelled pixels classify as their label is not kept; under the true pose a new W still is."""
+    make, cam = tracker_and_camera
+    base = make(ShirtPipelineParams())
+    kin, model, colours = base.kin, base.model, base.colours
+    q = kin.make_q(np.eye(3), np.array([0.0, 0.0, 0.93]), np.zeros(len(kin.lower)))
+    q[7 + 3: 7 + 7] = [0.0, 0.0, -0.8, 0.5]
+    view = CropView(97.0, 22.0, 430.0 / 144, 144)
+    wb = base.params.wb_size
+    # the image: each shirt pixel the mean of its colour under a light twice as bright as the model's
+    # (the true W is I / 2), the rest a dark grey (trousers, set)
+    ids = model.render_camera(q, cam, view).colour
+    lin = np.where(ids[..., None] >= 0, 2.0 * colours.means[np.maximum(ids, 0)], 0.03).astype(np.float32)
+    o = CameraObservation(view=view)
+    off = q.copy()
+    off[:3] += [0.0, 0.0, -0.45]                             # the same pose 45 cm lower: mostly on the dark rest
+
+    def update(params: ShirtPipelineParams, pose: np.ndarray) -> np.ndarray:
+        tr = make(params)
+        tr._update_white_balance(0, pose, o, lin, model.render_camera(pose, cam, _reduced(view, wb)))
+        return tr.W[0]
+
+    assert np.allclose(update(ShirtPipelineParams(), q), np.eye(3) / 2, atol=0.02)
+    # without the floor the far-off pose's W is kept, and it is far from the light's
+    loose = update(replace(ShirtPipelineParams(), wb_min_agreement=0.0), off)
+    assert not np.allclose(loose, np.eye(3)) and not np.allclose(loose, np.eye(3) / 2, atol=0.1)
+    assert np.array_equal(update(ShirtPipelineParams(), off), np.eye(3))

@@ -579,7 +579,14 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         def agreement(Wm: np.ndarray) -> float:
             best, score = nearest_colour(self.colours.distances(x, Wm))
             return float(np.mean((best == lab[on]) & (score < p.assisted_threshold)))
-        if agreement(W) + 0.02 < agreement(self.W[ci]):
+        new = agreement(W)
+        if new + 0.02 < agreement(self.W[ci]):
+            return
+        # ... and only if it explains a fair share of them at all: when the pose is far off (the
+        # first lock-on pass of shirt_jumping_jacks seed 7) both W fail, W* fits whatever the pose
+        # happens to cover (the black trousers: W* = 0.13 I, every pixel then classifies as the
+        # black patch) and the next frames lock onto that
+        if new < p.wb_min_agreement:
             return
         self.W[ci] = W
         self.references[ci].offer(W)
