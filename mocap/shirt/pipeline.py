@@ -588,5 +588,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         # black patch) and the next frames lock onto that
         if new < p.wb_min_agreement:
             return
+        # steady light: part of the way (one frame's fit carries its pose's errors); a change of light: all of it
+        a = p.wb_smoothing if not self._poor[ci] else 1.0
+        W = a * W + (1.0 - a) * self.W[ci]
         self.W[ci] = W
         self.references[ci].offer(W)

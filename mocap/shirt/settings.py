@@ -69,6 +69,13 @@ class ShirtPipelineParams:
         29 % of its pixels, and the take was lost, 34 cm RMS).  shirt_walk_lamp's updates
         under the lamp explain 45 % or more; one frame-0 update of shirt_outdoor seed 8 (33 %)
         is refused too.
+    wb_smoothing : float
+        In steady light (step 1 classified well in that camera) step 5 moves ``W`` this
+        fraction of the way to the new fit, ``W <- a W* + (1 - a) W``; after a change of
+        light (step 1 poor) it takes ``W*`` whole.  An addition to the paper (1 is its
+        per-frame update): the light of a room changes slowly, while the fit from one
+        frame's pose carries that pose's errors (shirt_office seed 3 in fixed light:
+        ``W`` 1.97 -> 0.52 -> 1.05 -> 0.40 over frames 36-45 while a forearm was lost).
     render_size : int
         Resolution of the blended pose's id map in each crop (step 3's distance
         transforms and the IK's anchors).
@@ -194,6 +201,7 @@ class ShirtPipelineParams:
     wb_size: int = 64
     wb_every: int = 1
     wb_min_agreement: float = 0.35
+    wb_smoothing: float = 0.3
     render_size: int = 96
     distance_reduce: int = 2
     gaussian_threshold: float = 3.0
@@ -241,6 +249,8 @@ class ShirtPipelineParams:
             require(getattr(self, name) >= n, self, name, f"must be at least {n}{cells}", error=MocapInputError)
         require(not self.crop_factor <= 0, self, "crop_factor", "must be positive", error=MocapInputError)  # (NaN passes, as before)
         require(0.0 <= self.wb_min_agreement < 1.0, self, "wb_min_agreement", "must be in [0, 1)", error=MocapInputError)
+        require(0.0 < self.wb_smoothing <= 1.0, self, "wb_smoothing", "must be in (0, 1] (1: the paper's per-frame update)",
+                error=MocapInputError)
 
     def baseline(self) -> "ShirtPipelineParams":
         """The baseline's settings: no pose prior (step 3), no adaptive white balance (step 5); the rest as the method's."""
