@@ -21,8 +21,8 @@ centroid IK started from the blended pose, but no pose prior (no step 3, no prio
 terms in the IK) and no adaptive white balance (``W`` stays the one of the labelled
 first frame; no reference search, no step 5).
 
-Additions to the paper, each with its reason where it is made (both methods get the
-first four, the last two belong to the pose prior):
+Additions to the paper, each with its reason where it is made (the baseline has every
+one but those of the pose prior, steps 3-4, and of step 5):
 
 * not-shirt colours of the session (trousers, skin, the set next to the subject) from
   the labelled first frame keep dark trousers and grey walls out of the black and
@@ -53,6 +53,10 @@ first four, the last two belong to the pose prior):
 * the white balance (section 5.1 and step 5) is least squares in each colour's
   Mahalanobis metric (:func:`mocap.shirt.colour_model.solve_white_balance`), the metric
   the classifier thresholds.
+* step 5 keeps a new ``W`` only if it explains a fair share of the pixels the pose labels
+  (``wb_min_agreement``: a pose far off otherwise turns every colour black), and in steady
+  light moves ``W`` only part of the way to it (``wb_smoothing``: one frame's fit carries
+  that pose's errors); after a change of light it takes the new ``W`` whole.
 
 The histogram search runs on every frame, as in the paper (a crop taken from the
 previous pose instead lets a wrong pose steer its own crop: tried, and it lost the arm
@@ -562,7 +566,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
 
 
     def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray, rend) -> None:
-        """Step 5: ``W*`` from the colours under the final pose's id map ``rend`` (at ``wb_size``)."""
+        """Step 5: ``W*`` from the colours under the final pose's id map ``rend`` (at ``wb_size``), kept if it
+        explains those colours (``wb_min_agreement``), blended in by ``wb_smoothing`` where the light is steady."""
         p = self.params
         small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
         means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
