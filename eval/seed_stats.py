@@ -33,6 +33,10 @@ from scipy import stats
 Better = Literal["lower", "higher"]
 #: Verdicts of :func:`paired_comparison`.
 A_BETTER, B_BETTER, NO_DIFFERENCE = "A better", "B better", "no detectable difference at this N"
+#: The verdict when the pairs' ranks move one way (signed-rank p < alpha) while the mean difference's
+#: interval still holds 0 (an outlying pair against the rest).  The reverse (an interval off 0 without
+#: a significant test) stays "no detectable difference": with few pairs the bootstrap is overconfident.
+MIXED = "mixed: most seeds differ one way, the mean's interval holds 0"
 DEFAULT_RESAMPLES = 9999
 
 
@@ -164,7 +168,8 @@ def paired_comparison(a, b, better: Better, alpha: float = 0.05, power: float = 
 
     Verdict: "A better" / "B better" when the Wilcoxon p-value is below ``alpha`` and the
     bootstrap CI of the mean difference excludes 0 (``better`` says whether lower or higher
-    values are better); else "no detectable difference at this N"."""
+    values are better); :data:`MIXED` when the test is significant but the interval holds 0
+    (e.g. 19 seeds a little better and one far worse); else "no detectable difference at this N"."""
     if better not in ("lower", "higher"):
         raise ValueError(f"better must be 'lower' or 'higher', got {better!r}")
     a, b = np.asarray(a, float).reshape(-1), np.asarray(b, float).reshape(-1)
@@ -184,8 +189,10 @@ def paired_comparison(a, b, better: Better, alpha: float = 0.05, power: float = 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # small-sample notes from scipy; the p-value is what we report
             p = float(stats.wilcoxon(d, zero_method="wilcox", alternative="two-sided").pvalue)
-    verdict = NO_DIFFERENCE
-    if math.isfinite(p) and p < alpha and math.isfinite(lo) and (lo > 0 or hi < 0):
+    ranks_say = math.isfinite(p) and p < alpha
+    mean_says = math.isfinite(lo) and (lo > 0 or hi < 0)
+    verdict = MIXED if ranks_say and not mean_says else NO_DIFFERENCE
+    if ranks_say and mean_says:
         b_higher = lo > 0
         verdict = B_BETTER if b_higher == (better == "higher") else A_BETTER
     return PairedComparison(float(a[ok].mean()) if n else nan, float(b[ok].mean()) if n else nan, n,

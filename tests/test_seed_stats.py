@@ -63,6 +63,21 @@ def test_paired_verdict_respects_the_metrics_direction(better, shift, verdict):
     assert r.p_value == pytest.approx(stats.wilcoxon(b - a).pvalue)
 
 
+def test_paired_verdict_is_mixed_when_the_ranks_and_the_mean_disagree():
+    # 19 seeds 0.1 lower under B, one 5 higher: the signed-rank test says B lower (p < 0.001),
+    # the mean difference (+0.16) has an interval that holds 0; neither "B better" nor "no difference"
+    rng = np.random.default_rng(0)
+    a = rng.normal(5.0, 1.0, 20)
+    d = -0.1 + rng.normal(0.0, 0.02, 20)
+    d[7] = 5.0
+    r = ss.paired_comparison(a, a + d, "lower", rng=0)
+    assert r.p_value < 0.001 and r.ci_low < 0.0 < r.ci_high
+    assert r.verdict == ss.MIXED
+    # without the outlier both criteria agree
+    d[7] = -0.1
+    assert ss.paired_comparison(a, a + d, "lower", rng=0).verdict == ss.B_BETTER
+
+
 def test_detectable_effect_matches_the_t_power_formula_and_shrinks_with_n():
     sd = 0.3
     d20 = ss.detectable_effect(sd, 20)

@@ -28,7 +28,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from eval.seed_stats import NO_DIFFERENCE, PairedComparison, paired_comparison
+from eval.seed_stats import MIXED, NO_DIFFERENCE, PairedComparison, paired_comparison
 from simbench.errors import ScenarioError, SimbenchInputError
 from simbench.output_dir import AtomicOutputDir
 from simbench.scenario import Scenario
@@ -58,7 +58,7 @@ class Comparison:
 
     def verdict(self, metric: str) -> str:
         r = self.rows[metric]
-        if self.directions.get(metric) is not None or r.verdict == NO_DIFFERENCE:
+        if self.directions.get(metric) is not None or r.verdict in (NO_DIFFERENCE, MIXED):
             return r.verdict
         return "B higher" if r.ci_low > 0 else "B lower"  # no better direction: say which way it moved
 
