@@ -157,6 +157,12 @@ class Camera:
         return -self.R.T @ self.t
 
     @property
+    def mean_focal_px(self) -> float:
+        """Mean of the two focal lengths ``(fx + fy) / 2``, pixels: the scale from
+        normalised image coordinates (or metres over depth) to pixels."""
+        return 0.5 * (self.K[0, 0] + self.K[1, 1])
+
+    @property
     def projection_matrix(self) -> np.ndarray:
         """``K [R | t]``, shape (3, 4), for undistorted pixel coordinates."""
         return self.K @ np.hstack([self.R, self.t[:, None]])
@@ -252,6 +258,11 @@ class Calibration:
     @property
     def names(self) -> list[str]:
         return [c.name for c in self.cameras]
+
+    @property
+    def mean_focal_px(self) -> np.ndarray:
+        """``(C,)`` :attr:`Camera.mean_focal_px` of every camera, pixels."""
+        return np.array([c.mean_focal_px for c in self.cameras])
 
     def project(self, p3ds: np.ndarray) -> np.ndarray:
         """World points ``(N, 3)`` to pixels in every camera, ``(C, N, 2)``."""

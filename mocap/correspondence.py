@@ -163,7 +163,7 @@ def reconstruct_unlabelled(
     p = params or CorrespondenceParams()
     C = len(calibration)
     xs = normalised if normalised is not None else normalised_detections(detections, calibration)
-    focal = np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in calibration])
+    focal = calibration.mean_focal_px
     cand = _pair_candidates(xs, calibration, focal, p)
     if cand is None:
         return UnlabelledPoints.empty(C)

@@ -221,7 +221,7 @@ def _gates(calibration: Calibration, centre: np.ndarray, params: LabelInitParams
     out = []
     for cam in calibration:
         depth = max(float((cam.R @ centre + cam.t)[2]), 0.1)
-        out.append(max(params.min_gate_px, 0.5 * (cam.K[0, 0] + cam.K[1, 1]) * params.slack_m / depth))
+        out.append(max(params.min_gate_px, cam.mean_focal_px * params.slack_m / depth))
     return np.array(out)
 
 

@@ -97,7 +97,7 @@ def reassociate(tracks: Tracks2D, detections: list[list[Detections]], traj: Traj
     have = np.isfinite(X).all(axis=2)
     cams = [calibration[n] for n in tracks.camera_names]
     for c, cam in enumerate(cams):
-        f_px = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+        f_px = cam.mean_focal_px
         proj = cam.project(X.reshape(-1, 3)).reshape(F, M, 2)
         z = cam.to_camera(np.nan_to_num(X.reshape(-1, 3))).reshape(F, M, 3)[..., 2]
         expected = np.pi * (f_px * p.marker_radius_m / np.where(z > 0, z, np.nan)) ** 2

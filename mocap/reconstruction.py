@@ -456,7 +456,7 @@ def relabel_views(
     if detections is not None and (len(detections) != C or any(len(d) != F for d in detections)):
         raise ValueError(f"detections must be {C} lists (one per camera) of {F} frames")
     cand_px, cand_n, tracker_idx = _candidates(raw, detections, cal)
-    focal = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in cal])
+    focal = cal.mean_focal_px
     out = np.full_like(raw, np.nan)
     mapping = np.tile(np.arange(M), (C, 1))        # camera c's tracker label a -> label (-1: unknown)
     motion = _LabelMotion(M, max_coast_frames)

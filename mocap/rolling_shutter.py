@@ -388,7 +388,7 @@ def _view_rows(raw_xy: np.ndarray, used_xy: np.ndarray, start: Trajectories, tim
         ok = measured & np.isfinite(raw_xy[:, c]).all(axis=2) & near
         k, m = np.nonzero(ok)
         xn = pixels_to_normalized(cam, raw_xy[k, c, m])                      # (N, 2)
-        scale = 0.5 * (cam.K[0, 0] + cam.K[1, 1]) / cam.to_camera(X[k, m])[:, 2]
+        scale = cam.mean_focal_px / cam.to_camera(X[k, m])[:, 2]
         R, t = cam.R, cam.t
         A = np.stack([xn[:, :1] * R[2] - R[0], xn[:, 1:] * R[2] - R[1]], axis=1) * scale[:, None, None]
         b = np.stack([xn[:, 0] * t[2] - t[0], xn[:, 1] * t[2] - t[1]], axis=1) * scale[:, None]

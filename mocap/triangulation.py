@@ -196,7 +196,7 @@ def _refine_normalized(
     obs = np.nan_to_num(xy[:, ok])
     wk = w[:, ok]
     Xk = X[ok]
-    f = _focal(calibration)
+    f = calibration.mean_focal_px
     Rs, ts = _rotations_translations(calibration)
     # Every camera at once (stacked products: each camera's slice is the product it had
     # alone, to the bit), the per-camera terms then summed in camera order as before.
@@ -350,16 +350,12 @@ def _rotations_translations(calibration: Calibration) -> tuple[np.ndarray, np.nd
     return np.stack([cam.R for cam in calibration]), np.stack([cam.t for cam in calibration])
 
 
-def _focal(calibration: Calibration) -> np.ndarray:
-    return np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in calibration])
-
-
 def normalized_residuals(p3ds: np.ndarray, xy: np.ndarray, calibration: Calibration) -> np.ndarray:
     """``(C, N)`` residuals in undistorted pixels: ``f * |projection - xy|`` (normalised ``xy``)."""
     d = project_normalized(p3ds, calibration) - xy
     dx, dy = d[..., 0], d[..., 1]
     # np.linalg.norm(d, axis=2), the same bits, without its reduction over a length-2 axis
-    return np.sqrt(dx * dx + dy * dy) * _focal(calibration)[:, None]
+    return np.sqrt(dx * dx + dy * dy) * calibration.mean_focal_px[:, None]
 
 
 def _robust(
@@ -474,7 +470,7 @@ def epipolar_distances(xy: np.ndarray, calibration: Calibration) -> np.ndarray:
     C, N = xy.shape[:2]
     h = np.concatenate([xy, np.ones((C, N, 1))], axis=2)   # (C, N, 3)
     d = np.full((C, C, N), np.nan)
-    f = np.array([0.5 * (cam.K[0, 0] + cam.K[1, 1]) for cam in calibration])
+    f = calibration.mean_focal_px
     for i in range(C):
         for j in range(i + 1, C):
             ci, cj = calibration[i], calibration[j]

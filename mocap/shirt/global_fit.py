@@ -88,7 +88,7 @@ class GlobalFit:
             centre_px = o.view.to_image(o.tiny.centre)
             scale = size_px / box_s  # image px per view metre
             targets = centre_px + (cents_m - box_c) * scale
-            f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+            f = cam.mean_focal_px
             depth = f / scale
             root_view = np.array([-box_c[0], -box_c[1], depth])
             roots.append(cam.R.T @ (o.ray_rotation.T @ root_view - cam.t))
