@@ -46,7 +46,7 @@ def _forearm_target(tracker: ShirtTracker, cam: Camera, q: np.ndarray, colour: n
     idx = np.arange(view.size * view.size)
     pdist = distance_to_patches(rend.patch, model.n_patches, idx, view.size, tracker.params.distance_reduce)
     o = CameraObservation(view=view, tiny=SimpleNamespace(side=80.0))
-    cons = tracker._camera_constraints(0, o, colour, idx, pdist, rend)
+    cons = tracker._camera_constraints(0, o, colour, idx, pdist, rend, q)
     forearm = model.geometry.body_names.index("forearm_l")
     patch = int(np.unique(model.face_patch[(model.face_body == forearm) & (model.face_patch >= 0)])[0])
     i = np.flatnonzero(cons.patch == patch)

@@ -57,19 +57,17 @@ one but those of the pose prior, steps 3-4, and of step 5):
   (``wb_min_agreement``: a pose far off otherwise turns every colour black), and in steady
   light moves ``W`` only part of the way to it (``wb_smoothing``: one frame's fit carries
   that pose's errors); after a change of light it takes the new ``W`` whole.
+* the bare hands are two more centroid targets of step 4 (:mod:`mocap.shirt.hands`, both methods): the
+  skin beyond each sleeve, told apart by the sleeve it borders; the wrists were most of the error.
 
 The histogram search runs on every frame, as in the paper (a crop taken from the
 previous pose instead lets a wrong pose steer its own crop: tried, and it lost the arm
 for good in shirt_office).  Step 3's distance transforms run on 2 x 2-pixel cells of the
 rendered id map (``distance_reduce``).
 
-Every stage is timed (``FrameEstimate.timings_ms``). The settings, :data:`STAGES` and the
-per-frame output are in :mod:`mocap.shirt.settings`, :func:`initial_white_balance` in
-:mod:`mocap.shirt.colour_model`; all are importable from here too.  :class:`ShirtTracker`
-has two parts in modules of their own: step 2b's blend and 6-DoF fit
-(:mod:`mocap.shirt.global_fit`) and the lock-on and recovery hypotheses
-(:mod:`mocap.shirt.hypotheses`); the small operations on id maps the steps share are in
-:mod:`mocap.shirt.id_maps`.
+Stages are timed (``FrameEstimate.timings_ms``); settings, :data:`STAGES` and the output are in
+:mod:`mocap.shirt.settings`.  :class:`ShirtTracker`'s parts: :mod:`mocap.shirt.global_fit` (step 2b),
+:mod:`mocap.shirt.hypotheses` (lock-on, recovery), :mod:`mocap.shirt.hands`; id-map helpers: :mod:`mocap.shirt.id_maps`.
 """
 
 from __future__ import annotations
@@ -90,6 +88,7 @@ from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference
 from mocap.shirt.colour_model import (ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means, linear_lookup,
                                      solve_white_balance)
 from mocap.shirt.global_fit import GlobalFit
+from mocap.shirt.hands import HandTracking
 from mocap.shirt.histogram_search import search_shirt
 from mocap.shirt.hypotheses import TrackerHypotheses
 from mocap.shirt.id_maps import border_band, reduced_view, silhouette, touches_border, without_stray_thin_bits, without_thin_bits
@@ -99,14 +98,7 @@ from mocap.shirt.kinematics import UPPER_NQ, UPPER_NV
 from mocap.shirt.settings import STAGES, CameraObservation, FrameEstimate, ShirtPipelineParams
 from mocap.shirt.shirt_model import ShirtModel
 
-__all__ = [
-    "STAGES",
-    "ShirtPipelineParams",
-    "CameraObservation",
-    "FrameEstimate",
-    "ShirtTracker",
-    "initial_white_balance",
-]
+__all__ = ["STAGES", "ShirtPipelineParams", "CameraObservation", "FrameEstimate", "ShirtTracker", "initial_white_balance"]
 
 
 @dataclass(frozen=True)
@@ -120,7 +112,7 @@ class _Crop:
     other_distances: np.ndarray | None
 
 
-class ShirtTracker(GlobalFit, TrackerHypotheses):
+class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
     """Runs the pipeline frame after frame for a rig of calibrated cameras.
 
     Parameters
@@ -178,6 +170,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         self._frames = 0  # frames finished
         self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
         self._cells: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (foreground pixels, their cells in step 3's maps)
+        self._init_hands()
         self._root_active = np.zeros(UPPER_NV, bool)
         self._root_active[:6] = True
         K = colour_model.n_colours
@@ -308,6 +301,8 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             rends = self.model.render_cameras(q, [(self.cameras[ci], reduced_view(obs[ci].view, p.wb_size)) for ci in cams], world)
             for ci, rend in zip(cams, rends):
                 self._update_white_balance(ci, q, obs[ci], lin[ci], rend)
+        if self._frames == 0:
+            self._learn_skin(self.q_prev, obs)
         self._frames += 1
         # where the shirt of this pose is in every image (the next crop must hold it)
         P = self.model.shirt_vertices(self.q_prev) if world is None else world[self.model.shirt_vertex_index]
@@ -481,7 +476,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             o.final = final
             o.silhouette = silhouette(final.colour, o.view)
             fractions[ci] = final.classified_fraction
-            cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend)
+            cons = self._camera_constraints(ci, o, final.colour, idx, pdist, rend, prior_pose)
             o.n_constraints = len(cons)
             parts.append(cons)
         return prior_pose, Constraints.concatenate(parts), fractions
@@ -524,9 +519,10 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
 
 
     def _camera_constraints(self, ci: int, o: CameraObservation, colour: np.ndarray, idx: np.ndarray, pdist: PatchDistances,
-                            rend) -> Constraints:
-        """Centroid constraints of one camera: classified colours split into patches by a rendered pose;
-        absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer than min_patch_pixels)."""
+                            rend, q: np.ndarray) -> Constraints:
+        """Centroid constraints of one camera: classified colours split into patches by the pose ``q`` rendered in
+        ``rend``; absence constraints for patches the pose shows (8+ pixels of its id map) that are not seen (fewer
+        than min_patch_pixels); the hands' (:mod:`mocap.shirt.hands`)."""
         p = self.params
         if p.thin_bits_out:
             # mixed pixels along an outline (a prop held against a box of the set's colour) can pass as a
@@ -545,8 +541,9 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
         if p.absence_constraints:
             shown = np.bincount(rend.patch[rend.patch >= 0].ravel().astype(np.int64), minlength=self.model.n_patches)
             absent = (counts < p.min_patch_pixels) & (shown >= 8)
-        return self._constraints(ci, o.view.to_image(cents), counts >= p.min_patch_pixels, self.model.patch_anchors(rend),
+        cons = self._constraints(ci, o.view.to_image(cents), counts >= p.min_patch_pixels, self.model.patch_anchors(rend),
                                  info, size_px, absent)
+        return Constraints.concatenate([cons, self._hand_constraints(ci, o, q, rend, pm)]) if self.skin is not None else cons
 
     def reassign(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> Constraints:
         """Constraints again with patches split and anchored by the id map of pose ``q`` (a second pass)."""
@@ -557,7 +554,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses):
             o = obs[ci]
             idx = o.pixels[0]
             pdist = self._patch_distances(ci, o, rend)
-            parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend))
+            parts.append(self._camera_constraints(ci, o, o.final.colour, idx, pdist, rend, q))
         return Constraints.concatenate(parts)
 
     def _failed(self, T: dict, obs: list[CameraObservation], lin: list):

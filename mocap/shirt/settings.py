@@ -188,6 +188,15 @@ class ShirtPipelineParams:
         the blended pose that keeps the unconstrained directions of the IK determined (plain damping).
     keep_classification : bool
         Keep per-camera classification maps in the results (for ROC curves).
+    hand_constraints, hand_std, hand_gate, hand_min_pixels, skin_threshold, head_sample
+        Both methods, from the second frame on (:mod:`mocap.shirt.hands`): the skin colour is
+        fitted once to the unclassified pixels within ``head_sample`` shirt sizes of the first
+        frame's head; then each hand is the skin piece (``skin_threshold`` Mahalanobis units;
+        ``hand_min_pixels`` working pixels or more) that borders its forearm's pixels of the patch
+        split, nearest to where the pose puts the hand within ``hand_gate`` shirt sizes, and its
+        centroid a step-4 target with an SD of ``hand_std`` shirt sizes.  0.015 on cached frames of
+        the seed tables (medians, shirt_jumping_jacks / shirt_walk_lamp / shirt_tungsten_off seeds
+        1-10): 0.01 1.97 / 5.11 / 2.17 cm, 0.015 1.71 / 4.51 / 2.05, 0.025 1.84 / 5.04 / 2.02.
     """
 
     histogram: HistogramSearchParams = HistogramSearchParams()
@@ -240,6 +249,12 @@ class ShirtPipelineParams:
     baseline_damping_std: float = 3.0
     baseline_previous_start: bool = True
     keep_classification: bool = False
+    hand_constraints: bool = True
+    hand_std: float = 0.015
+    hand_gate: float = 0.35
+    hand_min_pixels: int = 8
+    skin_threshold: float = 3.0
+    head_sample: float = 0.08
 
     def __post_init__(self) -> None:
         least = {"wb_every": 1, "distance_reduce": 1, "render_size": 8 * self.distance_reduce, "work_size": 16, "wb_size": 8,
@@ -251,6 +266,9 @@ class ShirtPipelineParams:
         require(0.0 <= self.wb_min_agreement < 1.0, self, "wb_min_agreement", "must be in [0, 1)", error=MocapInputError)
         require(0.0 < self.wb_smoothing <= 1.0, self, "wb_smoothing", "must be in (0, 1] (1: the paper's per-frame update)",
                 error=MocapInputError)
+        for name in ("hand_std", "hand_gate", "skin_threshold", "head_sample"):
+            require(getattr(self, name) > 0, self, name, "must be positive", error=MocapInputError)
+        require(self.hand_min_pixels >= 1, self, "hand_min_pixels", "must be at least 1", error=MocapInputError)
 
     def baseline(self) -> "ShirtPipelineParams":
         """The baseline's settings: no pose prior (step 3), no adaptive white balance (step 5); the rest as the method's."""
