@@ -55,7 +55,10 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     first_ms = {}
     # reference in the same run: the full method without issue 18's lock-on and arm search
     plain = replace(ShirtPipelineParams(), arm_search=False, lock_on_yaws=0)
-    for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline()), ("full_no_arm_search", plain)):
+    # and without session 20's hand targets (what they cost)
+    no_hands = replace(ShirtPipelineParams(), hand_constraints=False)
+    for name, p in (("full", ShirtPipelineParams()), ("baseline", ShirtPipelineParams().baseline()), ("full_no_arm_search", plain),
+                    ("full_no_hands", no_hands)):
         run = track_sequence(session.tracker(p), seq.frames)
         per_method[name] = run.timings_ms[3:]
         first_ms[name] = float(run.timings_ms[0].sum())
@@ -80,6 +83,10 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     results["ms.total_no_arm_search_max"] = float(plain_frames.max())
     log.info(f"{'total (full, no arm search)':<22}{results['ms.total_no_arm_search']:>16.2f}   max {results['ms.total_no_arm_search_max']:.2f}"
              "   (reference: the full method without the per-frame arm search and first-frame headings)")
+    hands_off = per_method["full_no_hands"].sum(axis=1)
+    results["ms.total_no_hands"] = float(hands_off.mean())
+    log.info(f"{'total (full, no hands)':<22}{results['ms.total_no_hands']:>16.2f}   max {float(hands_off.max()):.2f}"
+             "   (reference: the full method without the hands' targets, hand_constraints = false)")
     # reference: histogram search without the integral histogram, same frames and masks
     bg = BackgroundModel()
     bg.learn_empty(session.empty[0])
