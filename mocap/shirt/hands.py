@@ -49,7 +49,7 @@ def _centre_of_mass(mjcf_text: str, body: str) -> np.ndarray:
     el = ET.fromstring(mjcf_text).find(f".//body[@name='{body}']/inertial")
     if el is None:
         raise MocapInputError(f"humanoid MJCF: no <inertial> in body {body!r}; give the standalone humanoid of docs/humanoid_spec.md "
-                              "(or set hand_constraints = false)")
+                              "(or pass ShirtPipelineParams(hand_constraints=False))")
     return np.array([float(v) for v in el.get("pos", "0 0 0").split()])
 
 
@@ -81,7 +81,7 @@ class HandModel:
         missing = [b for b in ("hand_l", "hand_r", "head") if b not in names]
         if missing:
             raise MocapInputError(f"shirt geometry: no mesh for {', '.join(missing)}; the hand constraints need the hands and the "
-                                  "head among its bodies (rebuild the pose database, or set hand_constraints = false)")
+                                  "head among its bodies (rebuild the pose database, or pass ShirtPipelineParams(hand_constraints=False))")
         idx = [names.index(b) for b in ("hand_l", "hand_r", "head")]
         centres = np.array([_centre_of_mass(model.mjcf_text, b) for b in ("hand_l", "hand_r", "head")])
         return cls((idx[0], idx[1]), idx[2], centres)
