@@ -178,3 +178,22 @@ def test_hand_constraints_target_the_hands_skin_in_a_rendered_frame(rig):
     anchored = cons.anchor_body[np.isin(cons.anchor_of, np.flatnonzero(extra))]
     assert sorted(g.body_names[b] for b in anchored) == ["hand_l", "hand_r"]
     assert not np.any(none.patch >= model.n_patches)
+
+
+def test_the_scenario_switch_turns_the_hands_off_and_keeps_older_scenarios_hashes():
+    """``[shirt_pipeline] hands``: on by default and then left out of the serialised scenario (the hash of a
+    scenario written before the hands is unchanged); ``false`` reaches the tracker's settings and changes the
+    hash; a non-boolean is refused naming the field."""
+    from simbench.errors import SimbenchInputError
+    from simbench.pipelines.shirt import tracker_params
+    from simbench.scenario import load_scenario
+
+    default = load_scenario("scenarios/shirt_office.toml")
+    on = default.with_overrides({"shirt_pipeline.hands": True})
+    off = default.with_overrides({"shirt_pipeline.hands": False})
+    assert "hands" not in default.model_dump()["shirt_pipeline"]
+    assert on.content_hash() == default.content_hash() != off.content_hash()
+    assert tracker_params(default).hand_constraints and not tracker_params(off).hand_constraints
+    assert tracker_params(off).keep_classification
+    with pytest.raises(SimbenchInputError, match="shirt_office.toml: field 'shirt_pipeline.hands': got 'no'"):
+        load_scenario("scenarios/shirt_office.toml", overrides={"shirt_pipeline.hands": "no"})

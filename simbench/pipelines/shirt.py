@@ -37,10 +37,11 @@ from simbench.pipelines.shirt_database import PoseSampling, ProgressFactory, dat
 from simbench.pipelines.shirt_inputs import colour_labels, scribble_labels, session_inputs
 from simbench.pipelines.shirt_training import ShirtTraining, ensure_training
 from simbench.render.video import Mp4Writer
+from simbench.scenario.model import Scenario
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
-__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "run_shirt_capture"]
+__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "tracker_params", "run_shirt_capture"]
 
 @dataclass(frozen=True)
 class ShirtSession:
@@ -123,6 +124,12 @@ def track_sequence(tracker: ShirtTracker, frames: np.ndarray, truth_labels: list
     return ShirtRun(q, qb, frac, T, roc)
 
 
+def tracker_params(scenario: Scenario) -> ShirtPipelineParams:
+    """The full method's settings for a scenario's run: classification maps kept (for the ROC data), the hands
+    as ``[shirt_pipeline] hands`` says."""
+    return ShirtPipelineParams(keep_classification=True, hand_constraints=scenario.shirt_pipeline.hands)
+
+
 def run_shirt_capture(stage: Stage, frames: np.ndarray, gt: GroundTruth, out_dir: Path | None,
                       progress_factory: ProgressFactory | None = None) -> tuple[dict[str, float], list[str]]:
     """The hook of ``simbench run``: full method and baseline on the same frames, scored.
@@ -148,7 +155,7 @@ def run_shirt_capture(stage: Stage, frames: np.ndarray, gt: GroundTruth, out_dir
     session = start_session(stage, frames, gt, progress_factory=progress_factory)
     model = ShirtModel(session.db.mjcf_text, session.db.geometry)
     truth_labels = [colour_labels(gt.id_maps[n], model.patch_colour) for n in gt.camera_names]
-    params = ShirtPipelineParams(keep_classification=True)
+    params = tracker_params(stage.scenario)
     runs = {"full": track_sequence(session.tracker(params), frames, truth_labels)}
     if stage.scenario.shirt_pipeline.baseline:
         runs["baseline"] = track_sequence(session.tracker(params.baseline()), frames)

@@ -432,6 +432,12 @@ class ShirtPipelineConfig(FrozenModel):
     database_size: Int = Field(4000, ge=100, le=1_000_000)
     baseline: StrictBool = True
     training_frames: Int = Field(60, ge=2, le=100_000, description="frames of other takes the colour model and IK covariances are trained on")
+    hands: StrictBool = Field(True, description="the bare hands as two more targets of step 4, both methods (mocap/shirt/hands.py)")
+
+    @model_serializer(mode="wrap")
+    def _omit_default_hands(self, handler):
+        # scenarios written before the hands serialise (and hash) as they did
+        return omit_defaults(handler(self), {"hands": True})
 
 
 class PipelineConfig(FrozenModel):
