@@ -13,7 +13,7 @@ from mocap.calibration import Calibration, Camera
 from mocap.errors import MocapInputError
 from mocap.shirt.classify import Classification, distance_to_patches
 from mocap.shirt.colour_model import ColourModel
-from mocap.shirt.hands import HandTargets, SkinColour, _centre_of_mass, find_hands, skin_pieces
+from mocap.shirt.hands import HandTargets, _centre_of_mass, find_hands, fit_skin_colour, skin_pieces
 from mocap.shirt.ik import IKPriors
 from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
 from mocap.shirt.settings import CameraObservation
@@ -83,11 +83,11 @@ def test_skin_colour_fit_keeps_the_skin_and_leaves_out_hair():
     rng = np.random.default_rng(4)
     skin = SKIN + rng.normal(0, 0.01, (400, 3))
     hair = np.array([0.05, 0.04, 0.03]) + rng.normal(0, 0.005, (120, 3))
-    fit = SkinColour.fit(np.vstack([skin, hair]))
-    assert np.allclose(fit.mean, SKIN, atol=0.004)
-    d = fit.distances(np.vstack([SKIN, hair[:1]]), np.eye(3))
+    fit = fit_skin_colour(np.vstack([skin, hair]))
+    assert fit.names == ("skin",) and np.allclose(fit.means[0], SKIN, atol=0.004)
+    d = fit.distances(np.vstack([SKIN, hair[:1]]), np.eye(3))[:, 0]
     assert d[0] < 1.0 and d[1] > 10.0
-    assert SkinColour.fit(skin[:10]) is None
+    assert fit_skin_colour(skin[:10]) is None
 
 
 def _pieces(blobs: list[tuple[int, int]], size: int = 64) -> HandTargets:
@@ -97,7 +97,7 @@ def _pieces(blobs: list[tuple[int, int]], size: int = 64) -> HandTargets:
     for bx, by in blobs:
         for yy in range(by - 1, by + 2):
             x[yy * size + bx - 1: yy * size + bx + 2] = SKIN
-    skin = SkinColour(SKIN, np.eye(3) / 0.01 ** 2)
+    skin = ColourModel(SKIN[None], (np.eye(3) * 0.01 ** 2)[None], ("skin",))
     return skin_pieces(np.arange(size * size), x, colour, np.eye(3), skin, 3.0)
 
 
@@ -161,7 +161,7 @@ def test_hand_constraints_target_the_hands_skin_in_a_rendered_frame(rig):
     pdist = distance_to_patches(rend.patch, model.n_patches, idx, view.size, 1)
     tracker.skin = None
     without = tracker._camera_constraints(0, o, colour, idx, pdist, rend, q)
-    tracker.skin = SkinColour(SKIN, np.eye(3) / 0.02 ** 2)
+    tracker.skin = ColourModel(SKIN[None], (np.eye(3) * 0.02 ** 2)[None], ("skin",))
     tracker._pieces.clear()
     try:
         cons = tracker._camera_constraints(0, o, colour, idx, pdist, rend, q)

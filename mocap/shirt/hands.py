@@ -12,7 +12,7 @@ Inputs and outputs, per frame and camera:
 
 * in: the crop's foreground pixels and step-1 classification, the white balance ``W``, the
   pose being solved (its render and its patch split), and the session's skin colour
-  (:class:`SkinColour`, fitted once to the pixels around the first frame's head);
+  (:func:`fit_skin_colour`, fitted once to the pixels around the first frame's head);
 * out: up to two IK constraints (:meth:`HandModel.constraints`): each hand's skin centroid in
   the image, anchored at the hand's centre of mass (the pipeline's kinematics locks the wrists,
   so a hand moves with its forearm).
@@ -39,7 +39,7 @@ from mocap.shirt.colour_model import ColourModel
 from mocap.shirt.ik import Constraints
 from mocap.shirt.shirt_model import CropView, ShirtModel
 
-__all__ = ["HAND_SIDES", "HandModel", "SkinColour", "HandTargets", "skin_pieces", "find_hands", "HandTracking"]
+__all__ = ["HAND_SIDES", "HandModel", "fit_skin_colour", "HandTargets", "skin_pieces", "find_hands", "HandTracking"]
 
 HAND_SIDES: tuple[str, str] = ("l", "r")
 
@@ -105,33 +105,19 @@ class HandModel:
                            np.arange(n), np.array(self.hand_body)[ok], self.centre_m[:2][ok], np.ones(n))
 
 
-@dataclass(frozen=True)
-class SkinColour:
-    """The subject's skin colour: a Gaussian in white-balanced linear RGB (``mean (3,)``, ``inv_cov (3, 3)``)."""
-
-    mean: np.ndarray
-    inv_cov: np.ndarray
-
-    @classmethod
-    def fit(cls, x: np.ndarray, regularisation: float = 1e-5) -> "SkinColour | None":
-        """From pixels ``x (n, 3)`` (white-balanced linear RGB) that are mostly skin: the mean and covariance of
-        those within 2.5 robust SDs of the median in every channel (the rest: hair, shadow, a sleeve's edge).
-        None with fewer than 20 such pixels."""
-        x = np.asarray(x, float).reshape(-1, 3)
-        if len(x) < 20:
-            return None
-        med = np.median(x, axis=0)
-        mad = 1.4826 * np.median(np.abs(x - med), axis=0) + 1e-6
-        core = x[np.all(np.abs(x - med) < 2.5 * mad, axis=1)]
-        if len(core) < 20:
-            return None
-        cov = np.cov(core.T) + regularisation * np.eye(3)
-        return cls(core.mean(axis=0), np.linalg.inv(cov))
-
-    def distances(self, x: np.ndarray, W: np.ndarray) -> np.ndarray:
-        """Mahalanobis distance ``(n,)`` of linear pixels ``x (n, 3)`` after white balance ``W``."""
-        d = np.asarray(x, np.float64) @ np.asarray(W, float).T - self.mean
-        return np.sqrt(np.einsum("ni,ij,nj->n", d, self.inv_cov, d))
+def fit_skin_colour(x: np.ndarray, regularisation: float = 1e-5) -> ColourModel | None:
+    """The subject's skin colour, one Gaussian ``"skin"`` in white-balanced linear RGB, from pixels ``x (n, 3)`` (white
+    balanced) that are mostly skin: the mean and covariance of those within 2.5 robust SDs of the median in every
+    channel (the rest: hair, shadow, a sleeve's edge).  None with fewer than 20 such pixels."""
+    x = np.asarray(x, float).reshape(-1, 3)
+    if len(x) < 20:
+        return None
+    med = np.median(x, axis=0)
+    mad = 1.4826 * np.median(np.abs(x - med), axis=0) + 1e-6
+    core = x[np.all(np.abs(x - med) < 2.5 * mad, axis=1)]
+    if len(core) < 20:
+        return None
+    return ColourModel(core.mean(axis=0)[None], (np.cov(core.T) + regularisation * np.eye(3))[None], ("skin",))
 
 
 @dataclass(frozen=True)
@@ -152,14 +138,14 @@ class HandTargets:
         return n
 
 
-def skin_pieces(idx: np.ndarray, x: np.ndarray, colour: np.ndarray, W: np.ndarray, skin: SkinColour, threshold: float) -> HandTargets:
+def skin_pieces(idx: np.ndarray, x: np.ndarray, colour: np.ndarray, W: np.ndarray, skin: ColourModel, threshold: float) -> HandTargets:
     """The 8-connected pieces of the crop's foreground pixels ``idx (n,)`` (flat, colours ``x (n, 3)``) that no shirt
-    colour claims in ``colour (size, size)`` and that are within ``threshold`` of the skin colour."""
+    colour claims in ``colour (size, size)`` and that are within ``threshold`` of the skin colour (:func:`fit_skin_colour`)."""
     size = colour.shape[0]
     free = colour.ravel()[idx] < 0
     mask = np.zeros(size * size, np.uint8)
     if free.any():
-        near = skin.distances(x[free], W) < threshold
+        near = skin.distances(x[free], W)[:, 0] < threshold
         mask[idx[free][near]] = 1
     k, pieces, stats, cents = cv2.connectedComponentsWithStats(mask.reshape(size, size), connectivity=8)
     # (label ids survive a grey dilation; where two pieces are within reach the higher id wins, which only
@@ -218,7 +204,7 @@ class HandTracking:
 
     def _init_hands(self) -> None:
         self.hands = HandModel.from_model(self.model) if self.params.hand_constraints else None
-        self.skin: SkinColour | None = None
+        self.skin: ColourModel | None = None
         self._pieces: dict[int, tuple[np.ndarray, HandTargets]] = {}  # camera -> (step-1 map, its skin pieces)
         # each forearm's patch: its sleeve's end borders the hand
         m, names = self.model, list(self.model.geometry.body_names)
@@ -264,12 +250,12 @@ class HandTracking:
             near = (np.hypot(xs_ - c[0], ys - c[1]) < self.params.head_sample * o.tiny.side) & (o.final.colour.ravel()[idx] < 0)
             xs.append(np.asarray(x[near], float) @ np.asarray(self.W[ci], float).T)
         if xs:
-            self.skin = SkinColour.fit(np.concatenate(xs))
+            self.skin = fit_skin_colour(np.concatenate(xs))
         if self.skin is not None:
             # skin joins the session's not-shirt colours: a pixel nearer to it than to every shirt colour stays
             # unclassified in steps 1 and 3 (step 3's pose prior otherwise gave the hand's pixels next to a
             # sleeve to that sleeve's colour, shrinking the hand and pulling the forearm's centroid out)
-            skin = ColourModel(self.skin.mean[None], np.linalg.inv(self.skin.inv_cov)[None], ("skin",))
+            skin = self.skin
             self.other = skin if self.other is None else ColourModel(np.concatenate([self.other.means, skin.means]),
                                                                      np.concatenate([self.other.covariances, skin.covariances]),
                                                                      tuple(self.other.names) + ("skin",))
