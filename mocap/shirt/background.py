@@ -34,7 +34,6 @@ import cv2
 import numpy as np
 
 from mocap.errors import MocapInputError
-from mocap.shirt.classify import halve_image
 
 __all__ = ["BackgroundParams", "BackgroundModel", "smooth_gain"]
 
@@ -84,7 +83,6 @@ class BackgroundModel:
         self._kernel = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * params.dilate_px + 1,) * 2) if params.dilate_px else None
         self._size: tuple[int, int] | None = None
         self.empty: np.ndarray | None = None  # (H, W, 3) float32 empty scene under the current light
-        self.empty_half: np.ndarray | None = None  # the same, halved (classify.halve_image), for its crops
         self._empty_lit: np.ndarray | None = None  # (H, W, 3) float32 mean of the empty frames as recorded
         self._empty_small: np.ndarray | None = None  # the same, reduced, float32
         self.relit = False  # the empty scene was re-lit at least once (see ``relight_fraction``)
@@ -99,13 +97,7 @@ class BackgroundModel:
         elif self._size != (W, H):
             raise MocapInputError(f"background model: frame size {W}x{H} differs from the first frame's {self._size[0]}x{self._size[1]}")
         r = self.params.reduce
-        # halved with OpenCV's exact-2x area path while the factor allows: at other factors
-        # its area resampling is several times slower (0.35 against 0.11 ms for 640 x 480 by 4)
-        while r % 2 == 0 and img.shape[0] % 2 == 0 and img.shape[1] % 2 == 0 and r > 1:
-            img = cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2), interpolation=cv2.INTER_AREA)
-            r //= 2
-        H, W = img.shape[:2]
-        return img if r == 1 else cv2.resize(img, (W // r, H // r), interpolation=cv2.INTER_AREA)
+        return cv2.resize(img, (W // r, H // r), interpolation=cv2.INTER_AREA)
 
     def learn_empty(self, frames: list[np.ndarray]) -> None:
         """Prime the model with frames of the empty scene (fully learnt)."""
@@ -113,7 +105,6 @@ class BackgroundModel:
             self._mog.apply(self._small(f), learningRate=1.0 if i == 0 else 1.0 / (i + 1))
         if len(frames):
             self.empty = np.mean(np.stack([np.asarray(f, np.float32) for f in frames]), axis=0)
-            self.empty_half = halve_image(self.empty)
             self._empty_lit = self.empty
             H, W = self.empty.shape[:2]
             r = self.params.reduce
@@ -167,7 +158,6 @@ class BackgroundModel:
         H, W = image.shape[:2]
         gain = cv2.resize(gain_small, (W, H), interpolation=cv2.INTER_LINEAR)
         self.empty = np.clip(self._empty_lit * gain, 0, 255)
-        self.empty_half = halve_image(self.empty)
         self.relit = True
         return self._mog.apply(small, learningRate=0.0)
 

@@ -74,14 +74,8 @@ def crop_view(x: float, y: float, side: float, max_size: int) -> CropView:
     """Square crop of ``side`` image pixels centred at ``(x, y)``, at most ``max_size`` working pixels."""
     side_i = max(int(round(side)), 8)
     size = min(side_i, int(max_size))
-    # a side that is a multiple of 2**k (k: the halvings in :func:`crop_image`) keeps each halving
-    # on OpenCV's exact-2x area path; it moves the side by at most 2**(k-1) pixels (< 0.4 %)
-    m = 1 << _halvings(side_i, size)
-    side_i = max(int(round(side_i / m)) * m, m * size)
-    # ... and an even origin lets a halved image stand in for the first halving (``half``)
-    even = 2 if m > 1 else 1
-    x0 = int(round((x - side_i / 2.0) / even)) * even
-    y0 = int(round((y - side_i / 2.0) / even)) * even
+    x0 = int(round(x - side_i / 2.0))
+    y0 = int(round(y - side_i / 2.0))
     scale = side_i / size
     return CropView(x0 + 0.5 * scale - 0.5, y0 + 0.5 * scale - 0.5, scale, size)
 
@@ -93,67 +87,22 @@ def _crop_origin(view: CropView) -> tuple[int, int, int]:
     return x0, y0, side
 
 
-def _halvings(side: int, size: int) -> int:
-    """How many times a square of ``side`` pixels halves before it is less than twice ``size``."""
-    k = 0
-    while side >= (2 << k) * size:
-        k += 1
-    return k
-
-
-def halve_image(image: np.ndarray) -> np.ndarray:
-    """``image (H, W, ...)`` box-averaged 2 x 2 (an odd last row or column dropped): the ``half`` of :func:`crop_image`."""
+def crop_image(image: np.ndarray, view: CropView, interpolation: int = cv2.INTER_AREA) -> np.ndarray:
+    """The crop of an image ``(H, W, ...)`` at working resolution ``(size, size, ...)``, zero outside the image."""
     img = np.asarray(image)
-    H, W = img.shape[:2]
-    return cv2.resize(img[:H - H % 2, :W - W % 2], (W // 2, H // 2), interpolation=cv2.INTER_AREA)
-
-
-def _region(img: np.ndarray, x0: int, y0: int, side: int) -> np.ndarray:
-    """The square ``img[y0:y0+side, x0:x0+side]``, zero outside the image (a view when inside it)."""
+    x0, y0, side = _crop_origin(view)
     H, W = img.shape[:2]
     xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + side, W), min(y0 + side, H)
-    if (xa, ya, xb, yb) == (x0, y0, x0 + side, y0 + side):
-        return img[y0:y0 + side, x0:x0 + side]
+    if side != view.size and (xa, ya, xb, yb) == (x0, y0, x0 + side, y0 + side):
+        # inside the image: resampled from the image itself (the same pixels as from a copy)
+        return cv2.resize(img[y0:y0 + side, x0:x0 + side], (view.size, view.size), interpolation=interpolation)
     sub = np.zeros((side, side) + img.shape[2:], img.dtype)
     if xb > xa and yb > ya:
         sub[ya - y0: yb - y0, xa - x0: xb - x0] = img[ya:yb, xa:xb]
-    return sub
-
-
-def crop_image(image: np.ndarray, view: CropView, interpolation: int = cv2.INTER_AREA,
-               half: np.ndarray | None = None) -> np.ndarray:
-    """The crop of an image ``(H, W, ...)`` at working resolution ``(size, size, ...)``, zero outside the image.
-
-    With ``INTER_AREA`` (the default) a crop of ``scale >= 2`` is first halved (box-averaged)
-    while it stays at least twice the working size, and the last step, ``scale`` in [1, 2),
-    is bilinear (its 2 x 2 footprint still takes in every source pixel). OpenCV has a
-    vectorised area path only for an exact factor of 2; at other factors its area resampling
-    costs 5-15x more per source pixel (0.25-0.95 ms for a 240-550 pixel crop of a colour
-    frame, against 0.05-0.14 ms this way: 2-4 ms of a 2-camera frame, four crops a frame).
-    ``half``: :func:`halve_image` of ``image``, kept by a caller that crops one image often
-    (the empty scene): it stands in for the first halving, with the same values, where the
-    crop's origin is even (as :func:`crop_view` makes it when the crop is halved) and the
-    image's size is even.
-    """
-    img = np.asarray(image)
-    x0, y0, side = _crop_origin(view)
-    halvings = _halvings(side, view.size) if interpolation == cv2.INTER_AREA else 0
-    if half is not None and halvings and not (x0 % 2 or y0 % 2 or side % 2):
-        sub = _region(np.asarray(half), x0 // 2, y0 // 2, side // 2)
-        halvings -= 1
-    else:
-        sub = _region(img, x0, y0, side)
-    if sub.shape[0] == view.size:
-        return sub.copy() if sub.base is not None else sub
-    for _ in range(halvings):
-        if sub.shape[0] % 2:
-            break
-        sub = cv2.resize(sub, (sub.shape[1] // 2, sub.shape[0] // 2), interpolation=cv2.INTER_AREA)
-    if sub.shape[0] == view.size:
+    if side == view.size:
         return sub
-    if interpolation == cv2.INTER_AREA:
-        interpolation = cv2.INTER_LINEAR  # the last step, scale in [1, 2): every source pixel still counts
-    return cv2.resize(sub, (view.size, view.size), interpolation=interpolation)
+    out = cv2.resize(sub, (view.size, view.size), interpolation=interpolation)
+    return out
 
 
 def _linear(work_rgb: np.ndarray) -> np.ndarray:

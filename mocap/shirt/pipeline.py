@@ -395,7 +395,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
                 bg = self.backgrounds[ci]
                 if bg.empty is not None and bg.empty.shape == img.shape:
                     # the coarse mask's ring of the set: pixels as in the empty scene are background
-                    fg &= ~bg.empty_match(raw, crop_image(bg.empty, view, half=bg.empty_half))
+                    fg &= ~bg.empty_match(raw, crop_image(bg.empty, view))
             if attempt == 0 and side < limit:
                 # shirt touching the crop's border: a limb reaches out of it (e.g. one the
                 # previous pose lost); look again over a larger square, once.  Only the
