@@ -172,3 +172,26 @@ def test_step_5_moves_the_white_balance_part_of_the_way_in_steady_light_and_all_
         tr._poor[0] = poor
         tr._update_white_balance(0, q, CameraObservation(view=view), lin, rend)
         assert np.allclose(tr.W[0], expected, atol=0.02)
+
+
+def test_the_first_frames_stage_times_are_the_sum_of_its_lock_on_passes():
+    """ShirtTracker.process on a first frame: the estimate of the last pass, with every pass's stage times added
+    (three passes of 10 ms IK each: 30 ms; the last pass's pose)."""
+    from types import SimpleNamespace
+
+    from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
+    from mocap.shirt.settings import FrameEstimate
+
+    passes = []
+
+    def one_pass(images):
+        q = np.full(18, float(len(passes)))
+        passes.append(q)
+        return FrameEstimate(q, q.copy(), np.ones(1), {"ik": 10.0, "classify": 1.0})
+
+    for n in (1, 2, 3, 5):
+        passes.clear()
+        tracker = SimpleNamespace(params=replace(ShirtPipelineParams(), lock_on_passes=n), _frames=0, _process=one_pass)
+        est = ShirtTracker.process(tracker, [])
+        assert len(passes) == n and est.q[0] == n - 1
+        assert est.timings_ms == {"ik": 10.0 * n, "classify": 1.0 * n}

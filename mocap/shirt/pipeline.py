@@ -219,9 +219,10 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
             first = self._process(images)
             if not np.all(np.isfinite(first.q)):
                 return first
+            est = first
             for _ in range(p.lock_on_passes - 1):
-                est = self._process(images)
-                for s, v in first.timings_ms.items():
+                previous, est = est, self._process(images)
+                for s, v in previous.timings_ms.items():  # the passes' times so far
                     est.timings_ms[s] += v
             return est
         return self._process(images)
