@@ -63,6 +63,23 @@ def test_the_true_arm_scores_best_and_a_wrong_arm_is_told_apart(model):
     assert len(alone.scores) == len(search.fixed["l"]) and len(search.fixed["l"]) > 250
 
 
+def test_arm_points_are_right_when_the_cache_overflows_mid_call(model, monkeypatch):
+    """A long take fills the per-arm cache; a call that overflows it, with some of its arms cached before,
+    returns every arm's points as computed afresh (it raised KeyError: the cache was emptied under them)."""
+    import mocap.shirt.arm_search as arm_search
+
+    rng = np.random.default_rng(2)
+    kin = model.kin
+    hinges = kin.lower + (kin.upper - kin.lower) * rng.random((500, len(kin.lower)))
+    search = ArmSearch(model, hinges, n_arms=20, points_per_part=4, rng=np.random.default_rng(0))
+    monkeypatch.setattr(arm_search, "_CACHE_ARMS", 8)
+    arms = search.fixed["l"][:10]
+    search._in_thorax("l", arms[:6])          # 6 of 8 cached
+    got = search._in_thorax("l", arms[3:10])  # 3 cached, 4 new: over the limit
+    np.testing.assert_array_equal(got, search._compute_in_thorax("l", arms[3:10]))
+    np.testing.assert_array_equal(search._in_thorax("l", arms[3:10]), got)  # and read back from the cache
+
+
 def test_a_colour_with_no_pixel_is_far_everywhere():
     colour = -np.ones((20, 30), np.int16)
     colour[5, 7] = 2

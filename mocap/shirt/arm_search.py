@@ -139,14 +139,18 @@ class ArmSearch:
         cache = self._cache[side]
         keys = [a.tobytes() for a in arms]
         todo = [i for i, k in enumerate(keys) if k not in cache]
+        for i, k in enumerate(keys):
+            if k in cache:
+                out[i] = cache[k]
         if todo:
             fresh = self._compute_in_thorax(side, arms[todo])
+            out[todo] = fresh
+            # (filled before the cache may be cleared: a full cache emptied here held some of these
+            # arms, and reading them back afterwards was a KeyError on a long take)
             if len(cache) + len(todo) > _CACHE_ARMS:
                 cache.clear()
             for j, i in enumerate(todo):
                 cache[keys[i]] = fresh[j]
-        for i, k in enumerate(keys):
-            out[i] = cache[k]
         return out
 
     def _compute_in_thorax(self, side: str, arms: np.ndarray) -> np.ndarray:
