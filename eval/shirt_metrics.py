@@ -9,14 +9,18 @@
 * :func:`frames_within_cm`: the share of frames where every named joint (e.g. elbows and
   wrists) is within a distance of the truth (seed 001's Fig. 11: the arms kept or lost);
 * :func:`classification_roc`: correct against incorrect classifications while the
-  classifier's threshold varies (the paper's Fig. 6).
+  classifier's threshold varies (the paper's Fig. 6); :class:`RocCounts` gathers the same
+  figures frame by frame, at fixed thresholds, in memory that does not grow with the take.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-__all__ = ["rmse_cm", "per_frame_rms_cm", "frames_within_cm", "fill_forward", "shoulder_angle_deg", "classification_roc"]
+__all__ = ["rmse_cm", "per_frame_rms_cm", "frames_within_cm", "fill_forward", "shoulder_angle_deg", "classification_roc",
+           "RocCounts"]
 
 ARM_JOINTS: tuple[str, ...] = ("forearm_l", "hand_l", "forearm_r", "hand_r")
 """Elbows (the forearms' origins) and wrists (the hands' origins)."""
@@ -124,15 +128,50 @@ def classification_roc(score: np.ndarray, predicted: np.ndarray, truth: np.ndarr
     incorrect : (T,) float
         Wrongly classified pixels / all pixels.
     """
-    s = np.asarray(score, float).ravel()
-    p = np.asarray(predicted).ravel()
-    t = np.asarray(truth).ravel()
-    n_shirt = max(int((t >= 0).sum()), 1)
-    n = max(len(s), 1)
-    right = (p == t) & (t >= 0)
-    order = np.argsort(s)
-    s_sorted = s[order]
-    cum_right = np.concatenate([[0], np.cumsum(right[order])])
-    cum_wrong = np.concatenate([[0], np.cumsum(~right[order])])
-    k = np.searchsorted(s_sorted, np.asarray(thresholds, float), side="left")
-    return cum_right[k] / n_shirt, cum_wrong[k] / n
+    counts = RocCounts(np.asarray(thresholds, float))
+    counts.add(score, predicted, truth)
+    return counts.rates()
+
+
+@dataclass
+class RocCounts:
+    """The counts behind :func:`classification_roc` at fixed ``thresholds (T,)``, summed over calls of :meth:`add`.
+
+    A take's ROC from samples of every few frames: the counts are added frame by frame, so
+    nothing grows with the take, and :meth:`rates` gives exactly what
+    :func:`classification_roc` gives on all the samples at once.
+    """
+
+    thresholds: np.ndarray
+    right_below: np.ndarray = field(init=False)  # (T,) correctly classified shirt pixels with score < threshold
+    wrong_below: np.ndarray = field(init=False)  # (T,) the other pixels with score < threshold
+    n_shirt: int = 0                             # shirt pixels
+    n: int = 0                                   # all pixels
+
+    def __post_init__(self) -> None:
+        self.thresholds = np.asarray(self.thresholds, float).ravel()
+        self.right_below = np.zeros(len(self.thresholds), np.int64)
+        self.wrong_below = np.zeros(len(self.thresholds), np.int64)
+
+    def add(self, score: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> None:
+        """Add pixels: ``score``, ``predicted`` and ``truth`` as in :func:`classification_roc`."""
+        s = np.asarray(score, float).ravel()
+        t = np.asarray(truth).ravel()
+        right = (np.asarray(predicted).ravel() == t) & (t >= 0)
+        s_right, s_wrong = np.sort(s[right]), np.sort(s[~right])
+        self.right_below += np.searchsorted(s_right, self.thresholds, side="left")
+        self.wrong_below += np.searchsorted(s_wrong, self.thresholds, side="left")
+        self.n_shirt += int((t >= 0).sum())
+        self.n += len(s)
+
+    def rates(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(correct, incorrect)`` at every threshold, as :func:`classification_roc` defines them."""
+        return self.right_below / max(self.n_shirt, 1), self.wrong_below / max(self.n, 1)
+
+    def rates_at(self, threshold: float) -> tuple[float, float]:
+        """``(correct, incorrect)`` at one of the thresholds (exactly; ValueError for another)."""
+        hit = np.flatnonzero(self.thresholds == float(threshold))
+        if not len(hit):
+            raise ValueError(f"RocCounts: {threshold} is not one of its thresholds")
+        correct, incorrect = self.rates()
+        return float(correct[hit[0]]), float(incorrect[hit[0]])

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from eval.shirt_metrics import classification_roc, fill_forward, frames_within_cm, per_frame_rms_cm, rmse_cm, shoulder_angle_deg
+from eval.shirt_metrics import RocCounts, classification_roc, fill_forward, frames_within_cm, per_frame_rms_cm, rmse_cm, shoulder_angle_deg
 
 NAMES = ("abdomen", "thorax", "head", "upperarm_l", "forearm_l", "hand_l", "upperarm_r", "forearm_r", "hand_r")
 
@@ -56,3 +58,39 @@ def test_frames_within_counts_frames_whose_elbows_and_wrists_are_all_close():
     est[0] = np.nan                                       # a lost frame is not within
     assert frames_within_cm(est, true, NAMES) == pytest.approx(2 / 4)
     assert frames_within_cm(est, true, NAMES, joints=("head",), threshold_cm=200.0) == pytest.approx(3 / 4)
+
+
+def _roc_by_sorting(score, predicted, truth, thresholds):
+    """The ROC by one sort of all pixels and cumulative sums: an independent formulation to check against."""
+    s, p, t = np.asarray(score, float), np.asarray(predicted), np.asarray(truth)
+    right = (p == t) & (t >= 0)
+    order = np.argsort(s, kind="stable")
+    cum_right = np.concatenate([[0], np.cumsum(right[order])])
+    cum_wrong = np.concatenate([[0], np.cumsum(~right[order])])
+    k = np.searchsorted(s[order], thresholds, side="left")
+    return cum_right[k] / max(int((t >= 0).sum()), 1), cum_wrong[k] / max(len(s), 1)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(0, 60), st.integers(1, 4))
+def test_roc_counts_summed_over_frames_equal_the_roc_of_all_samples(seed, n, chunks):
+    """Counts added chunk by chunk (frames of a take) give the ROC of all the samples at once, to the bit; ties and
+    scores at the thresholds (quarter steps) and infinite scores (outside the foreground) included."""
+    rng = np.random.default_rng(seed)
+    score = rng.integers(0, 20, n) / 4.0
+    score[rng.random(n) < 0.2] = np.inf
+    pred = rng.integers(0, 3, n)
+    truth = rng.integers(-1, 3, n)
+    th = np.concatenate([np.linspace(0.0, 5.0, 21), [np.inf]])
+    counts = RocCounts(th)
+    for part in np.array_split(np.arange(n), chunks):
+        counts.add(score[part], pred[part], truth[part])
+    cor, inc = counts.rates()
+    ref_cor, ref_inc = _roc_by_sorting(score, pred, truth, th)
+    np.testing.assert_array_equal(cor, ref_cor)
+    np.testing.assert_array_equal(inc, ref_inc)
+    one_cor, one_inc = classification_roc(score, pred, truth, th)
+    np.testing.assert_array_equal(one_cor, ref_cor)
+    assert counts.rates_at(2.5) == (float(ref_cor[10]), float(ref_inc[10]))
+    with pytest.raises(ValueError, match="not one of its thresholds"):
+        counts.rates_at(2.6)

@@ -44,7 +44,7 @@ from simbench.pipelines.calibration import run_calibration
 from simbench.pipelines.exposure import score_light_events
 from simbench.pipelines.markers import label_template, pipeline_params, score_markers, score_sync, subject_model, sync_report
 from simbench.pipelines.report import write_run_report
-from simbench.pipelines.shirt import run_shirt_capture
+from simbench.pipelines.shirt import ShirtCapture
 from simbench.pipelines.shirt_database import ProgressFactory
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
@@ -140,11 +140,12 @@ def run_scenario(scenario: Scenario, out: str | Path | None = None, progress=Non
     with output if output is not None else nullcontext() as tmp:
         run = _Run(scenario, _Stages(output.public if output is not None else str), tmp, t0)
         run.detection_noise_px = float(detection_noise_px)
+        run.start_shirt(progress_factory)
         run.render(progress)
         run.calibration_session()
         run.marker_capture()
         run.command_pipeline()
-        run.shirt_capture(progress_factory)
+        run.shirt_capture()
         run.finish()
         if tmp is not None:
             run.write_outputs(tmp)
@@ -168,12 +169,39 @@ class _Run:
         self.sync: ClockSync | None = None  # the estimated clocks of unsynchronised cameras
         self.detection_noise_px = 0.0  # injected 2D detection noise (run_scenario's argument)
         self.brightness: list[np.ndarray] | None = [] if scenario.lighting.events and self.has_markers else None
+        self.shirt: ShirtCapture | None = None  # the colour-shirt capture, fed each frame as it renders
+        self._shirt_failure: Exception | None = None  # what stopped it, raised again in its stage
+        self._shirt_s = 0.0  # seconds spent in it
+
+    def start_shirt(self, progress_factory: ProgressFactory | None) -> None:
+        """When the subject wears the shirt: its pose database and training (built or loaded) and the empty
+        scene, before the take renders (:class:`~simbench.pipelines.shirt.ShirtCapture`)."""
+        if not self.scenario.subject.shirt:
+            return
+        t1 = time.perf_counter()
+        try:
+            self.shirt = ShirtCapture(self.stage, progress_factory=progress_factory)
+        except Exception as exc:  # recorded in the shirt pipeline's stage, after the render (module doc)
+            interrupts.raise_if_pending(exc)
+            self._shirt_failure = exc
+        self._shirt_s += time.perf_counter() - t1
+
+    def _track_shirt(self, fo) -> None:
+        """The shirt capture on one rendered frame; a failure stops it (and is recorded in its stage)."""
+        if self.shirt is None or self._shirt_failure is not None:
+            return
+        t1 = time.perf_counter()
+        try:
+            self.shirt.add_frame(fo.index, fo.images, fo.ids)
+        except Exception as exc:
+            interrupts.raise_if_pending(exc)
+            self._shirt_failure = exc
+        self._shirt_s += time.perf_counter() - t1
 
     def render(self, progress) -> None:
-        """Render every frame: videos written, detections streamed, the contact sheet's frames kept;
-        the frames themselves are kept only for the shirt pipeline."""
+        """Render every frame: videos written, detections streamed, the shirt tracked, the contact sheet's
+        frames kept; no other frame is kept."""
         keep = set(contact_sheet_rows(self.scenario.n_frames))
-        shirt = self.scenario.subject.shirt
         with render_writer(self.stage, self.tmp, png=False) if self.tmp is not None else nullcontext() as write:
 
             def on_frame(fo):
@@ -186,9 +214,10 @@ class _Run:
                     self.brightness.append(fo.images[:, ::8, ::8].mean(axis=(1, 2, 3)))
                 if fo.index in keep:
                     self.kept_frames[fo.index] = fo.images.copy()
+                self._track_shirt(fo)
 
-            self.seq = render_frames(self.stage, on_frame=on_frame, keep_frames=shirt, keep_ids=shirt, progress=progress)
-        self.timings["render_s"] = time.perf_counter() - self.t0
+            self.seq = render_frames(self.stage, on_frame=on_frame, keep_frames=False, keep_ids=False, progress=progress)
+        self.timings["render_s"] = time.perf_counter() - self.t0 - self._shirt_s  # (the shirt's tracking is its own)
         self.gt = self.seq.ground_truth
         self.calibration = self.gt.calibration()
 
@@ -381,17 +410,19 @@ class _Run:
         return [[dataclasses.replace(d, xy=d.xy + rng.normal(0.0, self.detection_noise_px, d.xy.shape)) for d in cam]
                 for cam in self.stream.detections]
 
-    def shirt_capture(self, progress_factory: ProgressFactory | None) -> None:
-        """The colour-shirt pipeline of seed 001 (:mod:`simbench.pipelines.shirt`) when the subject wears the shirt."""
+    def shirt_capture(self) -> None:
+        """The colour-shirt pipeline of seed 001 (:mod:`simbench.pipelines.shirt`) when the subject wears the shirt:
+        both methods scored once the take has rendered (they tracked each frame as it came)."""
         if not self.scenario.subject.shirt:
             return
         t1 = time.perf_counter()
         with self.stages.run("shirt pipeline"):
-            shirt_metrics, shirt_report = run_shirt_capture(self.stage, self.seq.frames, self.gt, self.tmp,
-                                                            progress_factory=progress_factory)
+            if self._shirt_failure is not None:
+                raise self._shirt_failure
+            shirt_metrics, shirt_report = self.shirt.finish(self.gt, self.tmp)
             self.metrics.update(shirt_metrics)
             self.report_sections += shirt_report
-        self.timings["shirt_pipeline_s"] = time.perf_counter() - t1
+        self.timings["shirt_pipeline_s"] = self._shirt_s + time.perf_counter() - t1
 
     def finish(self) -> None:
         self.metrics["run.frames"] = self.gt.n_frames

@@ -1,7 +1,8 @@
 """The colour-shirt pipeline (seed 001) on one take of the bench: the session, the scored run and its report.
 
-``simbench run`` calls :func:`run_shirt_capture` for scenarios whose subject wears the
-shirt.  The pipeline (:mod:`mocap.shirt`) gets only what a user would have:
+``simbench run`` feeds a :class:`ShirtCapture` each frame as it renders, for scenarios whose
+subject wears the shirt (the frames are not kept: memory does not grow with the take).  The
+pipeline (:mod:`mocap.shirt`) gets only what a user would have:
 
 * the calibration (exact, from the bench);
 * one labelled frame per camera: the bench's id map of frame 0 stands in for the
@@ -34,14 +35,20 @@ from mocap.shirt.pose_database import PoseDatabase
 from mocap.shirt.kinematics import UPPER_BODY_JOINTS
 from mocap.shirt.shirt_model import ShirtModel
 from simbench.pipelines.shirt_database import PoseSampling, ProgressFactory, database_key, default_database_path, ensure_database
-from simbench.pipelines.shirt_inputs import colour_labels, scribble_labels, session_inputs
+from simbench.pipelines.shirt_inputs import colour_labels, first_frame_inputs, render_empty_frames, scribble_labels
 from simbench.pipelines.shirt_training import ShirtTraining, ensure_training
 from simbench.render.video import Mp4Writer
 from simbench.scenario.model import Scenario
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
-__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "tracker_params", "run_shirt_capture"]
+__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "tracker_params", "ShirtCapture", "ROC_THRESHOLDS"]
+
+ROC_THRESHOLDS = np.concatenate([np.linspace(0.0, 12.0, 61), [3.0, 5.0]])
+"""The classifiers' thresholds a run's ROC is counted at: the plot's 0-12 and the operating points (3 and 5)."""
+_OPERATING = (("g", 3.0, "gaussian"), ("a", 5.0, "assisted"))  # classifier, threshold, metric name
+_CURVE = slice(0, 61)  # ROC_THRESHOLDS of the plotted curve
+
 
 @dataclass(frozen=True)
 class ShirtSession:
@@ -66,13 +73,27 @@ def start_session(stage: Stage, frames: np.ndarray, gt: GroundTruth,
                   progress_factory: ProgressFactory | None = None) -> ShirtSession:
     """Database and training (built or loaded from the cache) and the session inputs of a take;
     ``progress_factory`` shows a database build's progress."""
+    db, training = _database_and_training(stage, progress_factory)
+    ids0 = np.stack([gt.id_maps[n][0] for n in gt.camera_names])
+    return _session(stage, db, training, frames[0], ids0, render_empty_frames(stage))
+
+
+def _database_and_training(stage: Stage, progress_factory: ProgressFactory | None) -> tuple[PoseDatabase, ShirtTraining]:
+    """The pose database and the training of a stage's scenario (built, or loaded from the caches)."""
     cfg = stage.scenario.shirt_pipeline
     sampling = PoseSampling(n_poses=cfg.database_size)
     db = ensure_database(stage.params, sampling, cfg.database, progress_factory=progress_factory)
     db.meta.setdefault("key", database_key(stage.params, sampling))
-    training = ensure_training(stage.scenario, db, cfg.training_frames)
-    W0, other, empty = session_inputs(stage, frames, gt, training.colour_model, np.asarray(db.geometry.patch_colour))
-    return ShirtSession(db, training, gt.calibration(), W0, other, empty)
+    return db, ensure_training(stage.scenario, db, cfg.training_frames)
+
+
+def _session(stage: Stage, db: PoseDatabase, training: ShirtTraining, images0: np.ndarray, ids0: np.ndarray,
+             empty: list[list[np.ndarray]]) -> ShirtSession:
+    """The session of a take from its first frame's images ``(C, H, W, 3)`` and id maps ``(C, H, W)`` and the
+    empty scene's frames; the exact calibration."""
+    W0, other = first_frame_inputs(stage.scenario.seed, images0, ids0, training.colour_model, np.asarray(db.geometry.patch_colour))
+    calibration = Calibration(tuple(c.calibration_camera() for c in stage.cameras))
+    return ShirtSession(db, training, calibration, W0, other, empty)
 
 
 # --------------------------------------------------------------------------- tracking
@@ -84,44 +105,58 @@ class ShirtRun:
     q_blend : (F, 18) blended database poses after the 6-DoF fit
     classified_fraction : (F, C)
     timings_ms : (F, S) per stage (:data:`mocap.shirt.pipeline.STAGES`)
-    roc : dict of arrays (score/best of both classifiers and the truth of sampled pixels), full method only
+    roc : the classifiers' ROC counts at :data:`ROC_THRESHOLDS` (``"g"``: step 1's Gaussian classifier,
+        ``"a"``: step 3's pose-assisted one) over sampled frames, full method only
     """
 
     q: np.ndarray
     q_blend: np.ndarray
     classified_fraction: np.ndarray
     timings_ms: np.ndarray
-    roc: dict | None = None
+    roc: dict[str, shirt_metrics.RocCounts] | None = None
+
+
+class _RunRecorder:
+    """A :class:`ShirtRun` filled frame by frame: per-frame results, and the ROC counts of every
+    ``roc_every``-th frame when given its truth labels (the frames themselves are not kept)."""
+
+    def __init__(self, n_frames: int, n_cameras: int, nq: int, roc: bool, roc_every: int = 5) -> None:
+        self.run = ShirtRun(np.full((n_frames, nq), np.nan), np.full((n_frames, nq), np.nan), np.zeros((n_frames, n_cameras)),
+                            np.zeros((n_frames, len(STAGES))),
+                            {key: shirt_metrics.RocCounts(ROC_THRESHOLDS) for key in ("g", "a")} if roc else None)
+        self.roc_every = roc_every
+
+    def wants_truth(self, k: int) -> bool:
+        """Whether frame ``k``'s truth labels are sampled for the ROC."""
+        return self.run.roc is not None and k % self.roc_every == 0
+
+    def add(self, k: int, est, truth_labels: list[np.ndarray] | None = None) -> None:
+        """Frame ``k``'s estimate; ``truth_labels``: its colour labels ``(H, W)`` per camera when :meth:`wants_truth`."""
+        r = self.run
+        r.q[k], r.q_blend[k], r.classified_fraction[k] = est.q, est.q_blend, est.classified_fraction
+        r.timings_ms[k] = [est.timings_ms[s] for s in STAGES]
+        if truth_labels is None or not self.wants_truth(k):
+            return
+        for ci, o in enumerate(est.cameras):
+            if o.step1 is None or o.final is None:
+                continue
+            truth = crop_image(truth_labels[ci], o.view, cv2.INTER_NEAREST).ravel()
+            fg = np.ones(truth.size, bool) if o.foreground is None else o.foreground.ravel()
+            for key, cls in (("g", o.step1), ("a", o.final)):
+                r.roc[key].add(np.where(fg, cls.score.ravel(), np.inf), cls.best.ravel(), truth)
 
 
 def track_sequence(tracker: ShirtTracker, frames: np.ndarray, truth_labels: list[np.ndarray] | None = None,
                    roc_every: int = 5, progress=None) -> ShirtRun:
-    """Run a tracker over frames ``(F, C, H, W, 3)``; sample classification ROC data when truth labels ``[(F, H, W)] per camera`` are given."""
+    """Run a tracker over frames ``(F, C, H, W, 3)``; count the classifiers' ROC when truth labels ``[(F, H, W)] per camera`` are given."""
     F, C = frames.shape[:2]
-    q = np.full((F, tracker.kin.nq), np.nan)
-    qb = np.full((F, tracker.kin.nq), np.nan)
-    frac = np.zeros((F, C))
-    T = np.zeros((F, len(STAGES)))
-    roc = {"g_score": [], "g_best": [], "a_score": [], "a_best": [], "truth": []} if truth_labels is not None else None
+    rec = _RunRecorder(F, C, tracker.kin.nq, truth_labels is not None, roc_every)
     for k in range(F):
         est = tracker.process([frames[k, ci] for ci in range(C)])
-        q[k], qb[k], frac[k] = est.q, est.q_blend, est.classified_fraction
-        T[k] = [est.timings_ms[s] for s in STAGES]
-        if roc is not None and k % roc_every == 0:
-            for ci, o in enumerate(est.cameras):
-                if o.step1 is None or o.final is None:
-                    continue
-                truth = crop_image(truth_labels[ci][k], o.view, cv2.INTER_NEAREST).ravel()
-                fg = np.ones(truth.size, bool) if o.foreground is None else o.foreground.ravel()
-                for key, cls in (("g", o.step1), ("a", o.final)):
-                    roc[f"{key}_score"].append(np.where(fg, cls.score.ravel(), np.inf))
-                    roc[f"{key}_best"].append(cls.best.ravel())
-                roc["truth"].append(truth)
+        rec.add(k, est, [t[k] for t in truth_labels] if rec.wants_truth(k) else None)
         if progress is not None:
             progress(1)
-    if roc is not None:
-        roc = {k: np.concatenate(v) if v else np.zeros(0) for k, v in roc.items()}
-    return ShirtRun(q, qb, frac, T, roc)
+    return rec.run
 
 
 def tracker_params(scenario: Scenario) -> ShirtPipelineParams:
@@ -130,42 +165,63 @@ def tracker_params(scenario: Scenario) -> ShirtPipelineParams:
     return ShirtPipelineParams(keep_classification=True, hand_constraints=scenario.shirt_pipeline.hands)
 
 
-def run_shirt_capture(stage: Stage, frames: np.ndarray, gt: GroundTruth, out_dir: Path | None,
-                      progress_factory: ProgressFactory | None = None) -> tuple[dict[str, float], list[str]]:
-    """The hook of ``simbench run``: full method and baseline on the same frames, scored.
+class ShirtCapture:
+    """The colour-shirt capture of one take, fed frame by frame as the take renders (``simbench run``).
 
-    Parameters
-    ----------
-    stage : Stage
-    frames : (F, C, H, W, 3) uint8 RGB
-    gt : GroundTruth
-        With id maps (only frame 0's are given to the pipeline, as the user's scribbles).
-    out_dir : Path or None
-        Where plots (``plots/``) and the estimated poses (``shirt/``) go.
-    progress_factory : optional
-        Shows the progress of a pose-database build (the command line's progress bar).
+    Inputs: the stage, then each frame's images ``(C, H, W, 3)`` uint8 and id maps ``(C, H, W)``
+    (:meth:`add_frame`, in order from frame 0); outputs: the ``shirt.*`` metrics, the report's
+    section and the files of :func:`write_shirt_outputs` (:meth:`finish`). The full method and the
+    baseline track each frame as it comes, so neither the frames nor the id maps are kept: of
+    frame 0 its id maps (the user's scribbles), of the others the ROC counts of every 5th.
 
-    Returns
-    -------
-    metrics : dict
-        ``shirt.*`` numbers.
-    report_lines : list[str]
-        A Markdown section for the run report.
+    The pose database and training are built or loaded, and the empty scene rendered, when it is made
+    (before the take's render: they render on their own).
     """
-    session = start_session(stage, frames, gt, progress_factory=progress_factory)
-    model = ShirtModel(session.db.mjcf_text, session.db.geometry)
-    truth_labels = [colour_labels(gt.id_maps[n], model.patch_colour) for n in gt.camera_names]
-    params = tracker_params(stage.scenario)
-    runs = {"full": track_sequence(session.tracker(params), frames, truth_labels)}
-    if stage.scenario.shirt_pipeline.baseline:
-        runs["baseline"] = track_sequence(session.tracker(params.baseline()), frames)
-    scores = score_runs(runs, model, gt)
-    metrics = {"shirt.database_poses": len(session.db), "shirt.training_frames": session.training.info.get("frames", 0),
-               **scores.metrics}
-    lines = report_lines(metrics, session)
-    if out_dir is not None:
-        lines += write_shirt_outputs(Path(out_dir), stage, gt, frames, session, model, runs, scores)
-    return metrics, lines
+
+    def __init__(self, stage: Stage, progress_factory: ProgressFactory | None = None) -> None:
+        self.stage = stage
+        self._db, self._training = _database_and_training(stage, progress_factory)
+        self._empty = render_empty_frames(stage)
+        self.model = ShirtModel(self._db.mjcf_text, self._db.geometry)
+        self.session: ShirtSession | None = None
+        self._scribble_ids: np.ndarray | None = None  # (C, H, W) frame 0's id maps
+        self._trackers: dict[str, ShirtTracker] = {}
+        self._records: dict[str, _RunRecorder] = {}
+        self._next = 0
+
+    def add_frame(self, index: int, images: np.ndarray, ids: np.ndarray) -> None:
+        """Track frame ``index`` (``images (C, H, W, 3)`` uint8, ``ids (C, H, W)``) with both methods."""
+        if index != self._next:
+            raise ValueError(f"ShirtCapture.add_frame: frame {index} given where frame {self._next} was expected")
+        if self.session is None:
+            self.session = _session(self.stage, self._db, self._training, images, ids, self._empty)
+            self._scribble_ids = np.array(ids, copy=True)
+            params = tracker_params(self.stage.scenario)
+            methods = {"full": params, "baseline": params.baseline()} if self.stage.scenario.shirt_pipeline.baseline else {"full": params}
+            F, C = len(self.stage.frame_times()), len(self.stage.cameras)
+            for name, p in methods.items():
+                self._trackers[name] = self.session.tracker(p)
+                self._records[name] = _RunRecorder(F, C, self._trackers[name].kin.nq, roc=name == "full")
+        truth = None
+        if self._records["full"].wants_truth(index):
+            truth = [colour_labels(ids[ci], self.model.patch_colour) for ci in range(len(ids))]
+        for name, tracker in self._trackers.items():
+            self._records[name].add(index, tracker.process([images[ci] for ci in range(len(images))]), truth)
+        self._next += 1
+
+    def finish(self, gt: GroundTruth, out_dir: Path | None) -> tuple[dict[str, float], list[str]]:
+        """Score both methods against ``gt`` once every frame was added; the ``shirt.*`` metrics and the
+        report's section, and with ``out_dir`` the plots (``plots/``) and estimated poses (``shirt/``)."""
+        if self.session is None or self._next != gt.n_frames:
+            raise ValueError(f"ShirtCapture.finish: {self._next} frames tracked of the take's {gt.n_frames}")
+        runs = {name: rec.run for name, rec in self._records.items()}
+        scores = score_runs(runs, self.model, gt)
+        metrics = {"shirt.database_poses": len(self.session.db), "shirt.training_frames": self.session.training.info.get("frames", 0),
+                   **scores.metrics}
+        lines = report_lines(metrics, self.session)
+        if out_dir is not None:
+            lines += write_shirt_outputs(Path(out_dir), self.stage, gt, self._scribble_ids, self.session, self.model, runs, scores)
+        return metrics, lines
 
 
 @dataclass(frozen=True)
@@ -206,11 +262,9 @@ def score_runs(runs: dict[str, ShirtRun], model: ShirtModel, gt: GroundTruth) ->
         metrics[f"shirt.ms.{s}"] = float(v)
     if "baseline" in runs:
         metrics["shirt.improvement_vs_baseline"] = 1.0 - metrics["shirt.joint_rmse_cm"] / metrics["shirt.baseline_joint_rmse_cm"]
-    if full.roc is not None and full.roc["truth"].size:
-        for key, T_op, label in (("g", 3.0, "gaussian"), ("a", 5.0, "assisted")):
-            cor, inc = shirt_metrics.classification_roc(full.roc[f"{key}_score"], full.roc[f"{key}_best"], full.roc["truth"], np.array([T_op]))
-            metrics[f"shirt.{label}_correct_rate"] = float(cor[0])
-            metrics[f"shirt.{label}_incorrect_rate"] = float(inc[0])
+    if full.roc is not None and full.roc["g"].n:
+        for key, T_op, label in _OPERATING:
+            metrics[f"shirt.{label}_correct_rate"], metrics[f"shirt.{label}_incorrect_rate"] = full.roc[key].rates_at(T_op)
     return ShirtScores(metrics, true_angle, angles, errors)
 
 
@@ -234,9 +288,10 @@ def report_lines(metrics: dict[str, float], session: ShirtSession) -> list[str]:
     return lines
 
 
-def write_shirt_outputs(out: Path, stage: Stage, gt: GroundTruth, frames: np.ndarray, session: ShirtSession,
+def write_shirt_outputs(out: Path, stage: Stage, gt: GroundTruth, scribble_ids: np.ndarray, session: ShirtSession,
                         model: ShirtModel, runs: dict[str, ShirtRun], scores: ShirtScores) -> list[str]:
-    """Plots, the estimated poses and what ``mocap shirt`` needs to run on this take's videos; the report lines naming them."""
+    """Plots, the estimated poses and what ``mocap shirt`` needs to run on this take's videos; the report lines naming them.
+    ``scribble_ids``: frame 0's id maps ``(C, H, W)``, the user's scribbles."""
     nan = np.full(len(gt.times), np.nan)
     pics = _plots(out, gt.times, scores.true_angle_deg, scores.angle_deg["full"], scores.angle_deg.get("baseline", nan),
                   runs["full"].roc, scores.joint_error_cm["full"], scores.joint_error_cm.get("baseline", nan), stage.scenario.name)
@@ -249,12 +304,12 @@ def write_shirt_outputs(out: Path, stage: Stage, gt: GroundTruth, frames: np.nda
     # what `mocap shirt` needs to run on this take's videos: colour model, covariances, scribbles
     session.training.colour_model.save(folder / "colour_model.npz")
     session.training.priors.save(folder / "ik_priors.npz")
-    for name in gt.camera_names:
-        lab = scribble_labels(gt.id_maps[name][0], model.patch_colour)
+    for ci, name in enumerate(gt.camera_names):
+        lab = scribble_labels(scribble_ids[ci], model.patch_colour)
         png = np.where(lab >= 0, lab + 1, np.where(lab == NOT_SHIRT, 255, 0)).astype(np.uint8)
         cv2.imwrite(str(folder / f"scribbles_{name}.png"), png)
     for ci, name in enumerate(gt.camera_names):
-        with Mp4Writer(folder / f"empty_{name}.mp4", frames.shape[3], frames.shape[2], stage.scenario.fps) as w:
+        with Mp4Writer(folder / f"empty_{name}.mp4", scribble_ids.shape[2], scribble_ids.shape[1], stage.scenario.fps) as w:
             for f in session.empty[ci]:
                 w.write(f)
     cfg = stage.scenario.shirt_pipeline
@@ -293,14 +348,13 @@ def _plots(out: Path, times: np.ndarray, gt_angle: np.ndarray, full_angle: np.nd
     fig.tight_layout()
     fig.savefig(figs / "shirt_shoulder_angle.png", dpi=100)
     names.append("plots/shirt_shoulder_angle.png")
-    if roc is not None and roc["truth"].size:
-        th = np.linspace(0.0, 12.0, 61)
+    if roc is not None and roc["g"].n:
         fig = Figure(figsize=(6, 5))
         ax = fig.subplots()
         for key, label, T_op, c in (("g", "Gaussian classifier (step 1)", 3.0, "C0"), ("a", "pose-assisted (step 3)", 5.0, "C3")):
-            cor, inc = shirt_metrics.classification_roc(roc[f"{key}_score"], roc[f"{key}_best"], roc["truth"], th)
-            ax.plot(inc * 100, cor * 100, "-", color=c, label=label)
-            c0, i0 = shirt_metrics.classification_roc(roc[f"{key}_score"], roc[f"{key}_best"], roc["truth"], np.array([T_op]))
+            cor, inc = roc[key].rates()
+            ax.plot(inc[_CURVE] * 100, cor[_CURVE] * 100, "-", color=c, label=label)
+            c0, i0 = roc[key].rates_at(T_op)
             ax.plot(i0 * 100, c0 * 100, "o", color=c, label=f"T = {T_op:g}")
         ax.set_xlabel("incorrectly classified pixels (% of crop pixels)")
         ax.set_ylabel("correctly classified shirt pixels (%)")

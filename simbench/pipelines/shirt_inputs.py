@@ -14,7 +14,7 @@ from simbench.render.frames import Pose, frame_rng
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
-__all__ = ["colour_labels", "scribble_labels", "render_empty_frames", "session_inputs"]
+__all__ = ["colour_labels", "scribble_labels", "render_empty_frames", "session_inputs", "first_frame_inputs"]
 
 
 def colour_labels(id_map: np.ndarray, patch_colour: np.ndarray) -> np.ndarray:
@@ -56,9 +56,18 @@ def render_empty_frames(bench: Stage, n: int = 3) -> list[list[np.ndarray]]:
 
 def session_inputs(bench: Stage, frames: np.ndarray, gt: GroundTruth, colours: ColourModel, patch_colour: np.ndarray):
     """What the user provides at the start of a session: ``W`` per camera and the not-shirt colours
-    (from frame 0's labels), and frames of the empty scene."""
-    labels = [scribble_labels(gt.id_maps[n][0], patch_colour) for n in gt.camera_names]
-    W0 = [initial_white_balance(frames[0, ci], labels[ci], colours) for ci in range(len(labels))]
-    rng = np.random.default_rng(np.random.SeedSequence([bench.scenario.seed, 0x07E]))
-    other = train_other_colours([frames[0, ci] for ci in range(len(labels))], labels, W0, rng)
+    (from frame 0's labels, :func:`first_frame_inputs`), and frames of the empty scene."""
+    ids0 = np.stack([gt.id_maps[n][0] for n in gt.camera_names])
+    W0, other = first_frame_inputs(bench.scenario.seed, frames[0], ids0, colours, patch_colour)
     return W0, other, render_empty_frames(bench)
+
+
+def first_frame_inputs(seed: int, images: np.ndarray, ids: np.ndarray, colours: ColourModel, patch_colour: np.ndarray):
+    """The session inputs frame 0 gives: ``W`` per camera and the not-shirt colours, from the
+    first frame's images ``(C, H, W, 3)`` uint8 and id maps ``(C, H, W)`` (the user's scribbles);
+    ``seed``: the scenario's (the not-shirt colours' samples)."""
+    labels = [scribble_labels(ids[ci], patch_colour) for ci in range(len(ids))]
+    W0 = [initial_white_balance(images[ci], labels[ci], colours) for ci in range(len(labels))]
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x07E]))
+    other = train_other_colours([images[ci] for ci in range(len(labels))], labels, W0, rng)
+    return W0, other
