@@ -169,6 +169,49 @@ def test_mocap_shirt_cli_tracks_the_rendered_videos(shirt_run, tmp_path):
     assert res.exit_code == 2 and "draw the scribbles" in res.output
 
 
+def test_mocap_shirt_refuses_a_folder_it_did_not_write_and_bad_inputs_before_any_work(shirt_run, tmp_path):
+    """`mocap shirt` writes through a temporary folder: a user's folder at --out is refused and left as it was; a
+    video of another size than its calibration, or an --init-frame past the end, is one line and exit 2."""
+    import cv2
+    from typer.testing import CliRunner
+
+    from mocap.cli import app
+    from simbench.stage.ground_truth import load_ground_truth
+
+    _, out, _ = shirt_run
+    cams = load_ground_truth(out).camera_names
+
+    def args(videos, dest, *extra):
+        a = ["shirt", *map(str, videos), "--calibration", str(out / "calibration_ground_truth.yml"),
+             "--database", (out / "shirt" / "database.txt").read_text().strip(),
+             "--colour-model", str(out / "shirt" / "colour_model.npz"), "--priors", str(out / "shirt" / "ik_priors.npz"),
+             "--out", str(dest), *extra]
+        for c in cams:
+            a += ["--scribbles", str(out / "shirt" / f"scribbles_{c}.png")]
+        return a
+
+    videos = [out / "videos" / f"{c}.mp4" for c in cams]
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("my notes")
+    res = CliRunner().invoke(app, args(videos, mine))
+    assert res.exit_code == 2 and "was not written by mocap" in res.output
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"] and (mine / "notes.txt").read_text() == "my notes"
+    res = CliRunner().invoke(app, args(videos, tmp_path / "late", "--init-frame", "50"))
+    assert res.exit_code == 2 and "--init-frame" in res.output and not (tmp_path / "late").exists()
+    small = tmp_path / f"{cams[0]}.mp4"  # the first camera's video at half size
+    cap, frames = cv2.VideoCapture(str(videos[0])), []
+    while (ok_frame := cap.read())[0]:
+        frames.append(cv2.resize(ok_frame[1], None, fx=0.5, fy=0.5))
+    cap.release()
+    writer = cv2.VideoWriter(str(small), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, frames[0].shape[1::-1])
+    for f in frames:
+        writer.write(f)
+    writer.release()
+    res = CliRunner().invoke(app, args([small, *videos[1:]], tmp_path / "small"))
+    assert res.exit_code == 2 and "was calibrated at" in res.output and not (tmp_path / "small").exists()
+
+
 @pytest.fixture(scope="module")
 def tungsten_run(tmp_path_factory, shirt_run):
     """shirt_tungsten_off at 10 Hz over 2 s: the tungsten lamp goes off at 1.5 s. Same subject and

@@ -14,15 +14,16 @@ background model.
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack, closing
 from pathlib import Path
-from typing import Optional
+from typing import Iterator, Optional
 
 import cv2
 import numpy as np
 import typer
 
 from mocap.calibration import Calibration
-from mocap.cli.common import console, order_videos_by_camera
+from mocap.cli.common import atomic_output_dir, check_videos_against_calibration, console, order_videos_by_camera, probe_video
 from mocap.errors import InputFileError
 
 __all__ = ["shirt", "load_scribbles"]
@@ -49,28 +50,28 @@ def load_scribbles(path: Path, size: tuple[int, int], n_colours: int) -> np.ndar
     return out
 
 
-def _read_frames(path: Path, start: int, count: int | None) -> list[np.ndarray]:
-    """RGB frames ``(H, W, 3)`` uint8 of a video from frame ``start`` (at most ``count``)."""
+def _iter_rgb_frames(path: Path, start: int = 0, count: int | None = None) -> Iterator[np.ndarray]:
+    """RGB frames ``(H, W, 3)`` uint8 of a video from frame ``start`` (at most ``count``), one at a time:
+    a take of any length is tracked in the memory of a few frames."""
     if not path.is_file():
         raise InputFileError(path, "file not found", "pass the path of a video file (e.g. an MP4 written by `simbench render`)")
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise InputFileError(path, "cannot be opened as a video", "check that it is a video OpenCV/FFmpeg can decode (e.g. MP4 H.264)")
-    frames: list[np.ndarray] = []
-    i = 0
+    i = n = 0
     try:
-        while count is None or len(frames) < count:
+        while count is None or n < count:
             ok, frame = cap.read()
             if not ok:
                 break
             if i >= start:
                 if frame.ndim != 3:
                     raise InputFileError(path, "frames are not colour images", "the shirt pipeline needs colour video")
-                frames.append(np.ascontiguousarray(frame[..., ::-1]))
+                yield np.ascontiguousarray(frame[..., ::-1])
+                n += 1
             i += 1
     finally:
         cap.release()
-    return frames
 
 
 def shirt(
@@ -96,6 +97,8 @@ def shirt(
     from mocap.shirt.pose_database import PoseDatabase
     from mocap.shirt.kinematics import UPPER_BODY_JOINTS
 
+    from rich.progress import track
+
     cal = Calibration.load(calibration)
     paths = order_videos_by_camera(list(videos), cal.names)
     if len(scribbles) != len(paths):
@@ -103,39 +106,53 @@ def shirt(
                              "give one --scribbles PNG per camera, in calibration order")
     if empty and len(empty) != len(paths):
         raise InputFileError(empty[0], f"{len(empty)} empty-scene videos for {len(paths)} cameras", "give one --empty video per camera or none")
+    probes = [probe_video(p) for p in paths]
+    check_videos_against_calibration(paths, probes, cal)
+    if not 0 <= init_frame < probes[0].frames:
+        raise InputFileError(Path("--init-frame"), f"value {init_frame} (the videos hold {probes[0].frames} frames)",
+                             "give the index of the frame the scribbles label, 0 to the last frame")
+    if frames is not None and frames < 1:
+        raise InputFileError(Path("--frames"), f"value {frames}", "give the number of frames to track, 1 or more (or leave it out: all)")
+    n_todo = probes[0].frames - init_frame if frames is None else min(frames, probes[0].frames - init_frame)
+    if fps is None:
+        fps = probes[0].fps if probes[0].fps > 0 else 30.0
+    elif not (np.isfinite(fps) and fps > 0):
+        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
     db = PoseDatabase.load(database)
     cm = ColourModel.load(colour_model)
     pr = IKPriors.load(priors)
-    if fps is None:
-        cap = cv2.VideoCapture(str(paths[0]))
-        fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
-        cap.release()
-    seqs = [_read_frames(p, init_frame, frames) for p in paths]
-    n = min(len(s) for s in seqs)
-    if n == 0:
-        raise InputFileError(paths[0], f"no frames from --init-frame {init_frame}", "check the videos and --init-frame")
     labels = [load_scribbles(sp, cal[ci].size, db.n_colours) for ci, sp in enumerate(scribbles)]
-    W0 = [initial_white_balance(seqs[ci][0], labels[ci], cm) for ci in range(len(paths))]
-    other = train_other_colours([s[0] for s in seqs], labels, W0, np.random.default_rng(seed))
-    empty_frames = [_read_frames(p, 0, 5) for p in empty] if empty else None
+    empty_frames = [list(_iter_rgb_frames(p, 0, 5)) for p in empty] if empty else None
     # without frames of the empty scene a background model would learn the subject: none then
     params = ShirtPipelineParams() if empty_frames is not None else ShirtPipelineParams(background=None)
-    tracker = ShirtTracker(db, cm, pr, cal, W0, params.baseline() if baseline else params, empty_frames, other)
-    q = np.full((n, tracker.kin.nq), np.nan)
-    timings = np.zeros((n, len(STAGES)))
-    for k in range(n):
-        est = tracker.process([s[k] for s in seqs])
-        q[k] = est.q
-        timings[k] = [est.timings_ms[s] for s in STAGES]
-    out.mkdir(parents=True, exist_ok=True)
-    times = (init_frame + np.arange(n)) / fps
-    jc = tracker.kin.joint_centres(q)
-    np.savez(out / "poses.npz", times=times, q=q, qpos=tracker.kin.to_full_qpos(q), joint_centres_m=jc,
-             joint_names=np.array(UPPER_BODY_JOINTS))
-    header = "time_s," + ",".join(f"{j}_{a}" for j in UPPER_BODY_JOINTS for a in "xyz")
-    np.savetxt(out / "joint_centres.csv", np.column_stack([times, jc.reshape(n, -1)]), delimiter=",", header=header, comments="", fmt="%.6f")
-    summary = {"frames": n, "tracked_fraction": float(np.mean(np.all(np.isfinite(q), axis=1))),
-               "method": "baseline" if baseline else "full", "ms_per_frame": {s: round(float(v), 2) for s, v in zip(STAGES, timings.mean(axis=0))},
-               "files": ["poses.npz", "joint_centres.csv"]}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    console.print(f"{n} frames, tracked {summary['tracked_fraction']:.3f}, {timings.sum(axis=1).mean():.1f} ms per frame; wrote {out}/")
+    q_rows, timing_rows = [], []
+    tracker = None
+    with atomic_output_dir(out) as tmp, ExitStack() as videos_open:
+        # the cameras' frames in step, one frame at a time (a take of any length: the memory of a few frames)
+        streams = [videos_open.enter_context(closing(_iter_rgb_frames(p, init_frame, frames))) for p in paths]
+        for images in track(zip(*streams), total=n_todo, description="tracking", console=console, transient=True):
+            if tracker is None:  # the scribbled frame: white balance and the not-shirt colours
+                W0 = [initial_white_balance(images[ci], labels[ci], cm) for ci in range(len(paths))]
+                other = train_other_colours(list(images), labels, W0, np.random.default_rng(seed))
+                tracker = ShirtTracker(db, cm, pr, cal, W0, params.baseline() if baseline else params, empty_frames, other)
+            est = tracker.process(list(images))
+            q_rows.append(est.q)
+            timing_rows.append([est.timings_ms[s] for s in STAGES])
+        if tracker is None:
+            raise InputFileError(paths[0], f"no frames from --init-frame {init_frame}", "check the videos and --init-frame")
+        n = len(q_rows)
+        q, timings = np.array(q_rows), np.array(timing_rows)
+        times = (init_frame + np.arange(n)) / fps
+        jc = tracker.kin.joint_centres(q)
+        np.savez(tmp / "poses.npz", times=times, q=q, qpos=tracker.kin.to_full_qpos(q), joint_centres_m=jc,
+                 joint_names=np.array(UPPER_BODY_JOINTS))
+        header = "time_s," + ",".join(f"{j}_{a}" for j in UPPER_BODY_JOINTS for a in "xyz")
+        np.savetxt(tmp / "joint_centres.csv", np.column_stack([times, jc.reshape(n, -1)]), delimiter=",", header=header, comments="",
+                   fmt="%.6f")
+        summary = {"frames": n, "tracked_fraction": float(np.mean(np.all(np.isfinite(q), axis=1))),
+                   "method": "baseline" if baseline else "full",
+                   "ms_per_frame": {s: round(float(v), 2) for s, v in zip(STAGES, timings.mean(axis=0))},
+                   "files": ["poses.npz", "joint_centres.csv"]}
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
+    console.print(f"{n} frames, tracked {summary['tracked_fraction']:.3f}, {timings.sum(axis=1).mean():.1f} ms per frame; wrote {out}/",
+                  markup=False)
