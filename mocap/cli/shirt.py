@@ -101,23 +101,7 @@ def shirt(
 
     cal = Calibration.load(calibration)
     paths = order_videos_by_camera(list(videos), cal.names)
-    if len(scribbles) != len(paths):
-        raise InputFileError(scribbles[0] if scribbles else Path("--scribbles"), f"{len(scribbles)} scribble files for {len(paths)} cameras",
-                             "give one --scribbles PNG per camera, in calibration order")
-    if empty and len(empty) != len(paths):
-        raise InputFileError(empty[0], f"{len(empty)} empty-scene videos for {len(paths)} cameras", "give one --empty video per camera or none")
-    probes = [probe_video(p) for p in paths]
-    check_videos_against_calibration(paths, probes, cal)
-    if not 0 <= init_frame < probes[0].frames:
-        raise InputFileError(Path("--init-frame"), f"value {init_frame} (the videos hold {probes[0].frames} frames)",
-                             "give the index of the frame the scribbles label, 0 to the last frame")
-    if frames is not None and frames < 1:
-        raise InputFileError(Path("--frames"), f"value {frames}", "give the number of frames to track, 1 or more (or leave it out: all)")
-    n_todo = probes[0].frames - init_frame if frames is None else min(frames, probes[0].frames - init_frame)
-    if fps is None:
-        fps = probes[0].fps if probes[0].fps > 0 else 30.0
-    elif not (np.isfinite(fps) and fps > 0):
-        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
+    n_todo, fps = _check_inputs(paths, cal, scribbles, empty, init_frame, frames, fps)
     db = PoseDatabase.load(database)
     cm = ColourModel.load(colour_model)
     pr = IKPriors.load(priors)
@@ -156,3 +140,27 @@ def shirt(
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"{n} frames, tracked {summary['tracked_fraction']:.3f}, {timings.sum(axis=1).mean():.1f} ms per frame; wrote {out}/",
                   markup=False)
+
+
+def _check_inputs(paths: list[Path], cal: Calibration, scribbles: list[Path], empty: list[Path], init_frame: int,
+                  frames: int | None, fps: float | None) -> tuple[int, float]:
+    """Refuse, before any work, inputs that do not fit together (one line naming the file or option); the number
+    of frames to track and the frame rate (Hz)."""
+    if len(scribbles) != len(paths):
+        raise InputFileError(scribbles[0] if scribbles else Path("--scribbles"), f"{len(scribbles)} scribble files for {len(paths)} cameras",
+                             "give one --scribbles PNG per camera, in calibration order")
+    if empty and len(empty) != len(paths):
+        raise InputFileError(empty[0], f"{len(empty)} empty-scene videos for {len(paths)} cameras", "give one --empty video per camera or none")
+    probes = [probe_video(p) for p in paths]
+    check_videos_against_calibration(paths, probes, cal)
+    if not 0 <= init_frame < probes[0].frames:
+        raise InputFileError(Path("--init-frame"), f"value {init_frame} (the videos hold {probes[0].frames} frames)",
+                             "give the index of the frame the scribbles label, 0 to the last frame")
+    if frames is not None and frames < 1:
+        raise InputFileError(Path("--frames"), f"value {frames}", "give the number of frames to track, 1 or more (or leave it out: all)")
+    n_todo = probes[0].frames - init_frame if frames is None else min(frames, probes[0].frames - init_frame)
+    if fps is None:
+        fps = probes[0].fps if probes[0].fps > 0 else 30.0
+    elif not (np.isfinite(fps) and fps > 0):
+        raise InputFileError(Path("--fps"), f"value {fps!r}", "give the frame rate in Hz, a number > 0")
+    return n_todo, float(fps)
