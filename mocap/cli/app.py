@@ -55,6 +55,7 @@ def markers(
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, export_capture
+    from rich.progress import track
 
     cal = Calibration.load(calibration)
     if len(cal) < 2:
@@ -83,7 +84,8 @@ def markers(
                                   marker_radius_m=marker_diameter_mm * 0.5e-3)
     with _output_errors(out_dir), atomic_output_dir(out_dir) as tmp:
         stream = DetectionStream(len(cal), params.detection)
-        for images in zip(*(iter_video_frames(p) for p in paths)):
+        frames = zip(*(iter_video_frames(p) for p in paths))
+        for images in track(frames, total=probes[0].frames, description="detecting", console=console, transient=True):
             stream.add(images)
         if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
             raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
