@@ -1,8 +1,8 @@
 """A small z-buffer for the shirt's id maps (:func:`rasterise_faces`).
 
-Triangles are back-face culled and set up (edge functions, depth planes, boxes) with
-numpy, then a compiled (numba) loop tests the pixel centres of every box and keeps the
-nearest triangle per pixel.  It is hand-written rather than borrowed from OpenGL because
+Triangles are back-face culled and set up (edge functions, depth planes, boxes), then the
+pixel centres of the kept ones' boxes are tested and the nearest triangle per pixel kept,
+both in compiled (numba) loops.  It is hand-written rather than borrowed from OpenGL because
 the pipeline must run without a GL context (the ``mocap`` side never imports the
 renderer), and at the tiny resolutions used here (40-128 px) a pass over a few thousand
 triangles costs about a millisecond, less than a GL round trip; ``cv2.fillPoly`` has no
@@ -101,43 +101,35 @@ def rasterise_faces_over(uv: np.ndarray, depth: np.ndarray, faces: np.ndarray, f
 
 @numba.njit(cache=True, nogil=True)
 def _rasterise(uv, depth, faces, width, height, cull_back, base, out, zbuf, ids):  # pragma: no cover
-    """Set-up of every triangle (as the vectorised form had it, operation for operation) and :func:`_zbuffer`."""
+    """Set-up of every triangle and :func:`_zbuffer`: the kept ones' boxes and planes, packed in face order.
+
+    Each vertex coordinate is read into a local once (scalars, not small arrays), and only the kept
+    triangles (a third of them at the pipeline's sizes: the rest face away or cover no pixel centre)
+    are stored, so the arrays the z-buffer walks are short; the arithmetic is the same, operation for
+    operation, as the vectorised form it replaced.
+    """
     n = len(faces)
-    keep = np.zeros(n, np.bool_)
-    xmin = np.empty(n, np.int64)
-    ymin = np.empty(n, np.int64)
-    nx = np.empty(n, np.int64)
-    ny = np.empty(n, np.int64)
-    tier = np.empty(n, np.int64)
-    ec = np.empty((n, 3))
-    ea = np.empty((n, 3))
-    eb = np.empty((n, 3))
-    zc = np.empty(n)
-    za = np.empty(n)
-    zb = np.empty(n)
-    X = np.empty(3)
-    Y = np.empty(3)
-    Z = np.empty(3)
+    kf = np.empty(n, np.int64)       # the kept triangles' indices, in face order
+    box = np.empty((n, 5), np.int64)  # xmin, ymin, nx, ny, tier
+    par = np.empty((n, 12))           # ea0..2, eb0..2, ec0..2, za, zb, zc
+    k = 0
     for f in range(n):
-        for j in range(3):
-            v = faces[f, j]
-            X[j] = uv[v, 0]
-            Y[j] = uv[v, 1]
-            Z[j] = depth[v]
-        area = (X[1] - X[0]) * (Y[2] - Y[0]) - (Y[1] - Y[0]) * (X[2] - X[0])
-        # seen from the front, an outward-facing counter-clockwise triangle has negative
-        # signed area in image coordinates (y points down)
+        v0, v1, v2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        X0, X1, X2 = uv[v0, 0], uv[v1, 0], uv[v2, 0]
+        Y0, Y1, Y2 = uv[v0, 1], uv[v1, 1], uv[v2, 1]
+        area = (X1 - X0) * (Y2 - Y0) - (Y1 - Y0) * (X2 - X0)
         if cull_back:
             if not area < -1e-9:
                 continue
         elif not abs(area) > 1e-9:
             continue
-        if not min(min(Z[0], Z[1]), Z[2]) > NEAR_M:
+        Z0, Z1, Z2 = depth[v0], depth[v1], depth[v2]
+        if not min(min(Z0, Z1), Z2) > NEAR_M:
             continue
-        fxmin = np.ceil(min(min(X[0], X[1]), X[2]))
-        fxmax = np.floor(max(max(X[0], X[1]), X[2]))
-        fymin = np.ceil(min(min(Y[0], Y[1]), Y[2]))
-        fymax = np.floor(max(max(Y[0], Y[1]), Y[2]))
+        fxmin = np.ceil(min(min(X0, X1), X2))
+        fxmax = np.floor(max(max(X0, X1), X2))
+        fymin = np.ceil(min(min(Y0, Y1), Y2))
+        fymax = np.floor(max(max(Y0, Y1), Y2))
         if not (fxmax >= 0 and fymax >= 0 and fxmin <= width - 1 and fymin <= height - 1 and fxmax >= fxmin and fymax >= fymin):
             continue
         fxmin, fxmax = max(fxmin, 0.0), min(fxmax, width - 1.0)
@@ -146,67 +138,77 @@ def _rasterise(uv, depth, faces, width, height, cull_back, base, out, zbuf, ids)
         fny = fymax - fymin + 1
         if not fnx * fny <= _MAX_BOX_PIXELS:
             continue
-        keep[f] = True
-        xmin[f], ymin[f], nx[f], ny[f] = int(fxmin), int(fymin), int(fnx), int(fny)
-        tier[f] = 2 if (fnx <= 2 and fny <= 2) else (4 if (fnx <= 4 and fny <= 4) else 0)
-        # edge function of edge (i -> j), positive inside: sign(area) * ((xj - xi)(y - yi) - (yj - yi)(x - xi)),
-        # and the depth plane, both at the box corner (xmin, ymin)
+        kf[k] = f
+        box[k, 0], box[k, 1], box[k, 2], box[k, 3] = int(fxmin), int(fymin), int(fnx), int(fny)
+        box[k, 4] = 2 if (fnx <= 2 and fny <= 2) else (4 if (fnx <= 4 and fny <= 4) else 0)
         sg = np.sign(area)
-        for e in range(3):
-            i0 = (e + 1) % 3
-            i1 = (e + 2) % 3
-            ea[f, e] = -(Y[i1] - Y[i0]) * sg
-            eb[f, e] = (X[i1] - X[i0]) * sg
-            ec[f, e] = ea[f, e] * (fxmin - X[i0]) + eb[f, e] * (fymin - Y[i0])
+        # edges e = (i0 -> i1): (1 -> 2), (2 -> 0), (0 -> 1)
+        a0, b0 = -(Y2 - Y1) * sg, (X2 - X1) * sg
+        a1, b1 = -(Y0 - Y2) * sg, (X0 - X2) * sg
+        a2, b2 = -(Y1 - Y0) * sg, (X1 - X0) * sg
+        par[k, 0], par[k, 1], par[k, 2] = a0, a1, a2
+        par[k, 3], par[k, 4], par[k, 5] = b0, b1, b2
+        par[k, 6] = a0 * (fxmin - X1) + b0 * (fymin - Y1)
+        par[k, 7] = a1 * (fxmin - X2) + b1 * (fymin - Y2)
+        par[k, 8] = a2 * (fxmin - X0) + b2 * (fymin - Y0)
         w = 1.0 / area
-        za[f] = ((Z[1] - Z[0]) * (Y[2] - Y[0]) - (Z[2] - Z[0]) * (Y[1] - Y[0])) * w
-        zb[f] = ((X[1] - X[0]) * (Z[2] - Z[0]) - (X[2] - X[0]) * (Z[1] - Z[0])) * w
-        zc[f] = Z[0] + za[f] * (fxmin - X[0]) + zb[f] * (fymin - Y[0])
-    _zbuffer(keep, tier, nx, ny, xmin, ymin, base, ec, ea, eb, zc, za, zb, width, out, zbuf, ids)
+        za = ((Z1 - Z0) * (Y2 - Y0) - (Z2 - Z0) * (Y1 - Y0)) * w
+        zb = ((X1 - X0) * (Z2 - Z0) - (X2 - X0) * (Z1 - Z0)) * w
+        par[k, 9], par[k, 10] = za, zb
+        par[k, 11] = Z0 + za * (fxmin - X0) + zb * (fymin - Y0)
+        k += 1
+    _zbuffer(k, kf, box, par, base, width, out, zbuf, ids)
 
 
 @numba.njit(cache=True, nogil=True)
-def _zbuffer(keep, tier, nx, ny, xmin, ymin, base_pix, ec, ea, eb, zc, za, zb, width, out, zbuf, ids):  # pragma: no cover
-    """The z-buffer of :func:`rasterise_faces`, compiled: a loop over triangles and the pixel centres of their boxes.
+def _zbuffer(K, kf, box, par, base_pix, width, out, zbuf, ids):  # pragma: no cover
+    """The z-buffer of :func:`rasterise_faces`, compiled: a loop over the ``K`` kept triangles and the pixel centres of their boxes.
 
     Why compiled: the vectorised form spends most of its time building and filtering
     candidate (triangle, pixel) arrays, a few thousand tiny triangles per render, many
     renders per frame.  The same arithmetic as that form (edge functions of boxes up to
     4 x 4 in float32, larger ones in float64; depth planes in float64) and the same order
-    (boxes up to 2 x 2, then up to 4 x 4, then larger; each row by row), so the same
+    (boxes up to 2 x 2, then up to 4 x 4, then larger; each in face order, row by row), so the same
     triangle wins every pixel, ties included (the last one drawn at the least depth).
 
-    It walks the kept triangles of the set-up's arrays in place (their float32 edge
-    functions converted where used), as fast as it gets without copying them out first.
-    ``zbuf`` holds the depths drawn so far (``inf`` where none) and ``ids[f]`` is written for triangle ``f``.
+    ``kf (K,)``: the kept triangles' face indices; ``box (K, 5)``: x and y of the box's corner, its width,
+    height and tier (2, 4 or 0); ``par (K, 12)``: the edge functions' x, y and constant terms (three each)
+    at the corner, then the depth plane's.  ``zbuf`` holds the depths drawn so far (``inf`` where none) and
+    ``ids[f]`` is written for face ``f``.
     """
     tol32 = np.float32(-1e-6)
     for g in (2, 4, 0):
-        for f in range(len(tier)):
-            if not keep[f] or tier[f] != g:
+        for k in range(K):
+            if box[k, 4] != g:
                 continue
-            w = nx[f]
-            h = ny[f]
+            f = kf[k]
+            xmin, ymin, w, h = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
+            ea0, ea1, ea2 = par[k, 0], par[k, 1], par[k, 2]
+            eb0, eb1, eb2 = par[k, 3], par[k, 4], par[k, 5]
+            ec0, ec1, ec2 = par[k, 6], par[k, 7], par[k, 8]
+            za, zb, zc = par[k, 9], par[k, 10], par[k, 11]
+            p0 = base_pix[f] + ymin * width + xmin
+            idf = ids[f]
             if g:
-                ec0, ec1, ec2 = np.float32(ec[f, 0]), np.float32(ec[f, 1]), np.float32(ec[f, 2])
-                ea0, ea1, ea2 = np.float32(ea[f, 0]), np.float32(ea[f, 1]), np.float32(ea[f, 2])
-                eb0, eb1, eb2 = np.float32(eb[f, 0]), np.float32(eb[f, 1]), np.float32(eb[f, 2])
+                sa0, sa1, sa2 = np.float32(ea0), np.float32(ea1), np.float32(ea2)
+                sb0, sb1, sb2 = np.float32(eb0), np.float32(eb1), np.float32(eb2)
+                sc0, sc1, sc2 = np.float32(ec0), np.float32(ec1), np.float32(ec2)
             for cy in range(h):
                 for cx in range(w):
                     if g:
                         fx = np.float32(cx)
                         fy = np.float32(cy)
-                        if not (ec0 + ea0 * fx + eb0 * fy >= tol32 and ec1 + ea1 * fx + eb1 * fy >= tol32
-                                and ec2 + ea2 * fx + eb2 * fy >= tol32):
+                        if not (sc0 + sa0 * fx + sb0 * fy >= tol32 and sc1 + sa1 * fx + sb1 * fy >= tol32
+                                and sc2 + sa2 * fx + sb2 * fy >= tol32):
                             continue
                     else:
                         dx = np.float64(cx)
                         dy = np.float64(cy)
-                        if not (ec[f, 0] + ea[f, 0] * dx + eb[f, 0] * dy >= -1e-6 and ec[f, 1] + ea[f, 1] * dx + eb[f, 1] * dy >= -1e-6
-                                and ec[f, 2] + ea[f, 2] * dx + eb[f, 2] * dy >= -1e-6):
+                        if not (ec0 + ea0 * dx + eb0 * dy >= -1e-6 and ec1 + ea1 * dx + eb1 * dy >= -1e-6
+                                and ec2 + ea2 * dx + eb2 * dy >= -1e-6):
                             continue
-                    z = zc[f] + za[f] * np.float64(cx) + zb[f] * np.float64(cy)
-                    pix = base_pix[f] + (ymin[f] + cy) * width + xmin[f] + cx
+                    z = zc + za * np.float64(cx) + zb * np.float64(cy)
+                    pix = p0 + cy * width + cx
                     if z <= zbuf[pix]:
                         zbuf[pix] = z
-                        out[pix] = ids[f]
+                        out[pix] = idf
