@@ -118,6 +118,8 @@ def _rasterise(uv, depth, faces, width, height, cull_back, base, out, zbuf, ids)
         X0, X1, X2 = uv[v0, 0], uv[v1, 0], uv[v2, 0]
         Y0, Y1, Y2 = uv[v0, 1], uv[v1, 1], uv[v2, 1]
         area = (X1 - X0) * (Y2 - Y0) - (Y1 - Y0) * (X2 - X0)
+        # seen from the front, an outward-facing counter-clockwise triangle has negative
+        # signed area in image coordinates (y points down)
         if cull_back:
             if not area < -1e-9:
                 continue
@@ -142,7 +144,8 @@ def _rasterise(uv, depth, faces, width, height, cull_back, base, out, zbuf, ids)
         box[k, 0], box[k, 1], box[k, 2], box[k, 3] = int(fxmin), int(fymin), int(fnx), int(fny)
         box[k, 4] = 2 if (fnx <= 2 and fny <= 2) else (4 if (fnx <= 4 and fny <= 4) else 0)
         sg = np.sign(area)
-        # edges e = (i0 -> i1): (1 -> 2), (2 -> 0), (0 -> 1)
+        # edge function of edge e = (i -> j), (1 -> 2), (2 -> 0), (0 -> 1), positive inside:
+        # sign(area) * ((xj - xi)(y - yi) - (yj - yi)(x - xi)); it and the depth plane at the box corner (xmin, ymin)
         a0, b0 = -(Y2 - Y1) * sg, (X2 - X1) * sg
         a1, b1 = -(Y0 - Y2) * sg, (X0 - X2) * sg
         a2, b2 = -(Y1 - Y0) * sg, (X1 - X0) * sg
