@@ -145,3 +145,25 @@ def test_arm_variants_render_the_pixels_of_whole_renders(model):
                 assert np.array_equal(want.patch, mine.patch) and np.array_equal(want.colour, mine.colour)
         differs += not np.array_equal(variants[0][0].face, variants[1][0].face)
     assert differs >= 5  # the arms are seen: the variants are not all one picture
+
+
+def test_shirt_image_box_is_the_pinhole_box_of_the_shirt_vertices_in_front(model):
+    """ShirtModel.shirt_image_box: the extremes of ``x / z * f + c`` over the shirt's vertices more than 5 cm in
+    front of the camera, to the bit (numpy's form below); None when fewer than 3 are."""
+    rng = np.random.default_rng(11)
+    K = np.array([[610.0, 0.0, 322.5], [0.0, 590.0, 236.5], [0.0, 0.0, 1.0]])
+    lo, hi = model.kin.lower, model.kin.upper
+    for trial, centre in enumerate(((0.2, -2.2, 0.3), (1.9, -1.1, 0.1), (0.0, -0.15, 0.25))):  # the last one inside the body
+        cam = Camera("c", (640, 480), K, np.zeros(5), *look_at(np.asarray(centre, float), np.zeros(3)))
+        q = model.kin.neutral()
+        q[7:] = lo + (hi - lo) * rng.random(len(lo))
+        P = model.world_vertices(q)[model.shirt_vertex_index]
+        Xc = P @ cam.R.T + cam.t
+        ok = Xc[:, 2] > 0.05
+        uv = Xc[ok, :2] / Xc[ok, 2:3] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        box = model.shirt_image_box(P, cam)
+        assert 3 <= ok.sum() and np.array_equal(box[0], uv.min(axis=0)) and np.array_equal(box[1], uv.max(axis=0))
+        if trial == 2:
+            assert ok.sum() < len(P)  # some vertices behind this camera
+    behind = Camera("b", (640, 480), K, np.zeros(5), *look_at(np.array([0.0, -2.5, 0.3]), np.array([0.0, -5.0, 0.3])))
+    assert model.shirt_image_box(model.world_vertices(model.kin.neutral())[model.shirt_vertex_index], behind) is None

@@ -307,14 +307,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         self._frames += 1
         # where the shirt of this pose is in every image (the next crop must hold it)
         P = self.model.shirt_vertices(self.q_prev) if world is None else world[self.model.shirt_vertex_index]
-        for ci, cam in enumerate(self.cameras):
-            Xc = P @ cam.R.T + cam.t
-            ok = Xc[:, 2] > 0.05
-            if ok.sum() < 3:
-                self._prev_box[ci] = None
-                continue
-            uv = Xc[ok, :2] / Xc[ok, 2:3] * [cam.K[0, 0], cam.K[1, 1]] + cam.K[:2, 2]
-            self._prev_box[ci] = (uv.min(axis=0), uv.max(axis=0))
+        self._prev_box = [self.model.shirt_image_box(P, cam) for cam in self.cameras]
 
     def observe(self, images: list[np.ndarray]) -> tuple[FrameEstimate, Constraints, list[np.ndarray | None]]:
         """Steps 0-3 of a frame: the blended pose (``q_blend``) and the centroid constraints of step 4.
