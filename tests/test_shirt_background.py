@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mocap.shirt.background import BackgroundModel, BackgroundParams
-from mocap.shirt.classify import crop_image, crop_view
+from mocap.shirt.classify import crop_image, crop_reduced_mask, crop_view
 
 
 def _empty(rng: np.random.Generator) -> np.ndarray:
@@ -92,3 +95,17 @@ def test_after_the_lamp_goes_off_the_empty_scene_is_relit_and_the_set_is_backgro
     assert not relit0
     assert mask0[set_far].mean() > 0.5
     assert not same0[ribbon].any()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([(640, 480), (1280, 720), (320, 240), (1920, 1080), (643, 479)]),
+       st.sampled_from([2, 3, 4, 5]), st.sampled_from([16, 64, 96, 144, 200]))
+def test_the_reduced_mask_cropped_directly_equals_cropping_it_at_full_size(seed, size, reduce, work):
+    """crop_reduced_mask: OpenCV's two nearest-neighbour resamplings (to full size, then the crop) composed, to the
+    pixel, for crops inside, across and outside the image, larger and smaller than the working size."""
+    rng = np.random.default_rng(seed)
+    W, H = size
+    small = rng.random((H // reduce, W // reduce)) < rng.uniform(0.05, 0.8)
+    view = crop_view(rng.uniform(-100, W + 100), rng.uniform(-100, H + 100), rng.uniform(5, 2 * max(W, H)), work)
+    want = crop_image(BackgroundModel.full_size(small, W, H).view(np.uint8), view, cv2.INTER_NEAREST) > 0
+    assert np.array_equal(crop_reduced_mask(small, W, H, view), want)

