@@ -56,16 +56,17 @@ def bench_pipeline(frames: int = typer.Option(30, help="frames of the scenario r
 def bench_shirt(
     frames: int = typer.Option(20, "--frames", help="frames timed (after 3 warm-up frames)"),
     scenario: Optional[Path] = typer.Option(None, "--scenario", help="shirt scenario (default scenarios/shirt_office.toml)"),
+    passes: int = typer.Option(3, "--passes", min=1, help="passes of the full method over the same frames (all are averaged; each pass's mean is printed)"),
 ) -> None:
     """ms per 2-camera frame of the colour-shirt pipeline per stage, one core, with references."""
     if any(os.environ.get(k) != v for k, v in ONE_CORE_ENV.items()):
-        args = [sys.executable, "-m", "simbench.cli", "bench", "shirt", "--frames", str(frames)]
+        args = [sys.executable, "-m", "simbench.cli", "bench", "shirt", "--frames", str(frames), "--passes", str(passes)]
         if scenario is not None:
             args += ["--scenario", str(scenario)]
         raise typer.Exit(subprocess.run(args, env={**os.environ, **ONE_CORE_ENV}).returncode)
     from simbench.benchmarks.shirt import run_shirt_benchmark  # faiss, Pinocchio, GL: on use
 
-    run_shirt_benchmark(n_frames=frames, scenario_path=str(scenario) if scenario else None)
+    run_shirt_benchmark(n_frames=frames, scenario_path=str(scenario) if scenario else None, passes=passes)
 
 
 @bench_app.command("memory")
