@@ -82,7 +82,7 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
     log.info(f"{'total (full method)':<22}{total:>22.2f}   ({1000.0 / total:.1f} frames/s; target <= 33 ms)")
     results.update({"ms.total_pass_min": min(pass_means), "ms.total_pass_max": max(pass_means)})
     log.info(f"{'  per pass':<22}{'':>10}" + "  ".join(f"{m:.2f}" for m in pass_means)
-             + f"   ({len(pass_means)} passes over the same frames, {n_frames} timed frames each)")
+             + f"   ({len(pass_means)} pass{'es' if len(pass_means) > 1 else ''} over the same frames, {n_frames} timed frames each)")
     per_frame = full.sum(axis=1)
     p50, p95, worst = np.percentile(per_frame, [50, 95, 100])
     results.update({"ms.total_p50": float(p50), "ms.total_p95": float(p95), "ms.total_max": float(worst)})
