@@ -93,35 +93,9 @@ def run_shirt_benchmark(n_frames: int = 20, scenario_path: str | None = None, na
              f"not in the mean{later})")
     log.info(f"{'total (baseline)':<22}{results['ms.total_baseline']:>22.2f}")
     _log_reference_runs(per_method, results)
-    # reference: histogram search without the integral histogram, same frames and masks
-    bg = BackgroundModel()
-    bg.learn_empty(session.empty[0])
-    img = seq.frames[3, 0]
-    mask = bg.apply(img)
-    t0 = time.perf_counter()
-    for _ in range(5):
-        loc_i = search_shirt(img, foreground=mask)
-    t_int = (time.perf_counter() - t0) / 5 * 1e3
-    t0 = time.perf_counter()
-    for _ in range(naive_frames):
-        loc_n = naive_search(img, foreground=mask)
-    t_naive = (time.perf_counter() - t0) / naive_frames * 1e3
-    t0 = time.perf_counter()
-    search_shirt(img)
-    t_int_nomask = (time.perf_counter() - t0) * 1e3
-    results.update({"ms.histogram_integral_1cam": t_int, "ms.histogram_naive_1cam": t_naive, "ms.histogram_integral_nomask_1cam": t_int_nomask})
-    log.info(f"reference: histogram search, 1 camera, integral {t_int:.2f} ms vs naive per-window histograms {t_naive:.1f} ms "
-         f"(same result: x {loc_i.x:.1f}/{loc_n.x:.1f}, s {loc_i.s:.1f}/{loc_n.s:.1f}); without foreground mask {t_int_nomask:.2f} ms")
+    _log_histogram_reference(session.empty[0], seq.frames[3, 0], naive_frames, results)
     log.info(f"reference: seed 001 reports 120 ms per frame (Java, Core 2 Quad 2.4 GHz); this run: {total:.1f} ms ({120.0 / total:.1f}x)")
-    # how fast this core is right now (shared machines): numpy's elementwise throughput
-    a, b = np.random.default_rng(0).random((2, 1_000_000))
-    t0 = time.perf_counter()
-    for _ in range(20):
-        np.maximum(a, b)
-    ns = (time.perf_counter() - t0) / 20 / 1e6 * 1e9
-    results["machine.ns_per_element"] = ns
-    log.info(f"reference: numpy.maximum on 1e6 float64 takes {ns:.2f} ns per element on this core now "
-         "(an idle recent x86 core: about 0.5-1 ns); stage times scale with it")
+    _log_machine_speed(results)
     return results
 
 
@@ -137,3 +111,38 @@ def _log_reference_runs(per_method: dict[str, np.ndarray], results: dict[str, fl
     results["ms.total_no_hands"] = float(hands_off.mean())
     log.info(f"{'total (full, no hands)':<22}{results['ms.total_no_hands']:>16.2f}   max {float(hands_off.max()):.2f}"
              "   (reference: the full method without the hands' targets, hand_constraints = false)")
+
+
+def _log_histogram_reference(empty_frames: list[np.ndarray], img: np.ndarray, naive_frames: int, results: dict[str, float]) -> None:
+    """The histogram search on one camera's frame ``img (H, W, 3)``, with the integral histogram and without
+    (one histogram per window), into ``results`` and the log."""
+    # reference: histogram search without the integral histogram, same frames and masks
+    bg = BackgroundModel()
+    bg.learn_empty(empty_frames)
+    mask = bg.apply(img)
+    t0 = time.perf_counter()
+    for _ in range(5):
+        loc_i = search_shirt(img, foreground=mask)
+    t_int = (time.perf_counter() - t0) / 5 * 1e3
+    t0 = time.perf_counter()
+    for _ in range(naive_frames):
+        loc_n = naive_search(img, foreground=mask)
+    t_naive = (time.perf_counter() - t0) / naive_frames * 1e3
+    t0 = time.perf_counter()
+    search_shirt(img)
+    t_int_nomask = (time.perf_counter() - t0) * 1e3
+    results.update({"ms.histogram_integral_1cam": t_int, "ms.histogram_naive_1cam": t_naive, "ms.histogram_integral_nomask_1cam": t_int_nomask})
+    log.info(f"reference: histogram search, 1 camera, integral {t_int:.2f} ms vs naive per-window histograms {t_naive:.1f} ms "
+         f"(same result: x {loc_i.x:.1f}/{loc_n.x:.1f}, s {loc_i.s:.1f}/{loc_n.s:.1f}); without foreground mask {t_int_nomask:.2f} ms")
+
+
+def _log_machine_speed(results: dict[str, float]) -> None:
+    """How fast this core is right now (shared machines): numpy's elementwise throughput, into ``results`` and the log."""
+    a, b = np.random.default_rng(0).random((2, 1_000_000))
+    t0 = time.perf_counter()
+    for _ in range(20):
+        np.maximum(a, b)
+    ns = (time.perf_counter() - t0) / 20 / 1e6 * 1e9
+    results["machine.ns_per_element"] = ns
+    log.info(f"reference: numpy.maximum on 1e6 float64 takes {ns:.2f} ns per element on this core now "
+         "(an idle recent x86 core: about 0.5-1 ns); stage times scale with it")
