@@ -48,7 +48,7 @@ class TrackerHypotheses:
         p = self.params
         loose = [(q_blend, self.priors.blend_std * p.recovery_blend_scale)]
         if previous and self.q_prev is not None:
-            loose.append((self.q_prev, self.priors.motion_std * p.recovery_motion_scale))
+            loose.append((self.q_prev, self.motion_std() * p.recovery_motion_scale))
         return loose
 
     def _loose_solve(self, q: np.ndarray, est: FrameEstimate, lin: list, sil: dict, loose: list, passes: int) -> np.ndarray:

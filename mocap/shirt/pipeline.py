@@ -167,6 +167,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         self._prev_box: list[tuple[np.ndarray, np.ndarray] | None] = [None] * C
         self._first_fraction: list[float | None] = [None] * C
         self._poor = [False] * C  # step 1 of the current frame classified poorly in this camera
+        self._motion_scale = 1.0  # the motion prior's spread on this frame, times the trained one (_process)
         self._frames = 0  # frames finished
         self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
         self._cells: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (foreground pixels, their cells in step 3's maps)
@@ -227,13 +228,20 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
             return est
         return self._process(images)
 
+    def motion_std(self) -> np.ndarray:
+        """``(17,)``: the motion prior's spread on this frame (the trained one, tightened in steady tracking)."""
+        return self.priors.motion_std * self._motion_scale
+
     def _process(self, images: list[np.ndarray]) -> FrameEstimate:
+        p = self.params
+        # steady tracking (past the lock-on, the light holding on the previous frame): a tighter motion prior
+        steady = self._frames >= p.steady_after_frames and not any(self._poor)
+        self._motion_scale = p.steady_motion_scale if steady else 1.0
         est, cons, lin = self.observe(images)
         if not np.all(np.isfinite(est.q_blend)):
             if not self.params.keep_classification:
                 est.cameras = []
             return est
-        p = self.params
         q_b = est.q_blend
         T = est.timings_ms
 
@@ -242,7 +250,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         if p.ik_priors:
             priors = [(q_b, self.priors.blend_std)]
             if self.q_prev is not None:
-                priors.append((self.q_prev, self.priors.motion_std))
+                priors.append((self.q_prev, self.motion_std()))
         else:
             priors = [(q_b, np.full(UPPER_NV, p.baseline_damping_std))]
         sil = {ci: o.silhouette for ci, o in enumerate(est.cameras) if o.silhouette is not None}

@@ -117,6 +117,15 @@ class ShirtPipelineParams:
         spread times ``recovery_motion_scale`` and the blend prior's times
         ``recovery_blend_scale`` (an addition: the previous pose is then likely wrong and
         would hold the estimate near it).
+    steady_motion_scale, steady_after_frames : float, int
+        The motion prior's spread is multiplied by ``steady_motion_scale`` on frames of steady
+        tracking: from frame ``steady_after_frames`` on (past the lock-on), while no camera's
+        step 1 classified poorly on the previous frame (the light holds). An addition (session
+        23): the trained spread covers the training motions' frame-to-frame change; tightened
+        where nothing else moves the estimate, it keeps a limb one camera sees poorly nearer its
+        track (office, walk_lamp and the jumping jacks better on held-out seeds); tightened
+        through a lock-on or a change of light it holds on to a wrong pose (0.7 on every frame:
+        outdoor's worst seed 1.66 -> 3.08 cm, tungsten_off 2.13 -> 2.33). 1 turns it off.
     arm_hypotheses : bool
         With ``ik_priors``, first frame and lost frames: try each arm in the configuration of
         every database neighbour, the blend and the previous pose; solve again from the
@@ -231,6 +240,8 @@ class ShirtPipelineParams:
     recovery_passes: int = 3
     recovery_motion_scale: float = 4.0
     recovery_blend_scale: float = 1.0
+    steady_motion_scale: float = 0.7
+    steady_after_frames: int = 15
     arm_hypotheses: bool = True
     hypothesis_margin: float = 0.0
     lock_on_yaws: int = 8
