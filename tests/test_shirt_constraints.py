@@ -195,3 +195,31 @@ def test_the_first_frames_stage_times_are_the_sum_of_its_lock_on_passes():
         est = ShirtTracker.process(tracker, [])
         assert len(passes) == n and est.q[0] == n - 1
         assert est.timings_ms == {"ik": 10.0 * n, "classify": 1.0 * n}
+
+
+def test_the_motion_prior_tightens_in_steady_tracking_only(tracker_and_camera):
+    """``steady_motion_scale``: from frame ``steady_after_frames`` on, while no camera's step 1 was poor on the
+    previous frame, step 4's motion prior (and the recovery's loosened one) is the trained spread times the scale;
+    at lock-on and after a change of light it is the trained spread."""
+    from mocap.shirt.ik import Constraints
+    from mocap.shirt.settings import FrameEstimate
+
+    make, _ = tracker_and_camera
+
+    def unseen(images):  # a frame without the shirt: _process decides the prior, then returns
+        return FrameEstimate(np.full(18, np.nan), np.full(18, np.nan), np.zeros(1), {}), Constraints.empty(), []
+
+    for params, cases in ((ShirtPipelineParams(), ((0, False, 1.0), (14, False, 1.0), (15, False, 0.7), (40, False, 0.7),
+                                                   (40, True, 1.0))),
+                          (replace(ShirtPipelineParams(), steady_motion_scale=1.0), ((40, False, 1.0),)),
+                          (replace(ShirtPipelineParams(), steady_motion_scale=0.5, steady_after_frames=3), ((2, False, 1.0), (3, False, 0.5)))):
+        tr = make(params)
+        trained = tr.priors.motion_std.copy()
+        tr.observe = unseen
+        tr.q_prev = tr.kin.neutral()
+        for frames, poor, scale in cases:
+            tr._frames, tr._poor = frames, [poor]
+            tr._process([])
+            assert np.array_equal(tr.motion_std(), trained * scale)
+            loose = tr._loose_priors(tr.kin.neutral())
+            assert np.array_equal(loose[1][1], trained * scale * params.recovery_motion_scale)
