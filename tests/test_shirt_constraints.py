@@ -223,3 +223,14 @@ def test_the_motion_prior_tightens_in_steady_tracking_only(tracker_and_camera):
             assert np.array_equal(tr.motion_std(), trained * scale)
             loose = tr._loose_priors(tr.kin.neutral())
             assert np.array_equal(loose[1][1], trained * scale * params.recovery_motion_scale)
+
+
+def test_the_steady_motion_prior_settings_are_checked_where_they_are_made():
+    from mocap.errors import MocapInputError
+
+    for bad in ({"steady_motion_scale": 0.0}, {"steady_motion_scale": -0.7}, {"steady_motion_scale": float("nan")},
+                {"steady_after_frames": -1}):
+        name = next(iter(bad))
+        with pytest.raises(MocapInputError, match=name):
+            replace(ShirtPipelineParams(), **bad)
+    assert replace(ShirtPipelineParams(), steady_motion_scale=1.0, steady_after_frames=0).steady_motion_scale == 1.0

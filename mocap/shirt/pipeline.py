@@ -39,6 +39,8 @@ one but those of the pose prior, steps 3-4, and of step 5):
 * when step 4's centroids stay far from the solved pose (``poor_fit``), a few more
   split-and-solve passes run with a looser motion prior (``recovery_passes``): the
   previous pose is then likely wrong (e.g. while locking on from a far-off first blend);
+  in steady tracking the motion prior is tighter (``steady_motion_scale``): a limb one
+  camera sees poorly stays nearer its track;
 * on the first frame and on such lost frames, each arm is also tried in the
   configuration of every database neighbour, the blend and the previous pose, and the
   arms that agree best with step 1 are solved again (``arm_hypotheses``): centroid IK
@@ -239,7 +241,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         self._motion_scale = p.steady_motion_scale if steady else 1.0
         est, cons, lin = self.observe(images)
         if not np.all(np.isfinite(est.q_blend)):
-            if not self.params.keep_classification:
+            if not p.keep_classification:
                 est.cameras = []
             return est
         q_b = est.q_blend

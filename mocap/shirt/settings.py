@@ -282,6 +282,9 @@ class ShirtPipelineParams:
         for name in ("hand_std", "hand_gate", "skin_threshold", "head_sample"):
             require(getattr(self, name) > 0, self, name, "must be positive", error=MocapInputError)
         require(self.hand_min_pixels >= 1, self, "hand_min_pixels", "must be at least 1", error=MocapInputError)
+        require(0.0 < self.steady_motion_scale <= 10.0, self, "steady_motion_scale",
+                "must be in (0, 10] (1: the trained motion prior on every frame)", error=MocapInputError)
+        require(self.steady_after_frames >= 0, self, "steady_after_frames", "must be at least 0", error=MocapInputError)
 
     def baseline(self) -> "ShirtPipelineParams":
         """The baseline's settings: no pose prior (step 3), no adaptive white balance (step 5); the rest as the method's."""
