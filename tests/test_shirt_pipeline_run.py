@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 import json
+import pickle
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from mocap.shirt.shirt_model import ShirtModel
 from simbench.pipelines.run import run_scenario
+from simbench.pipelines.shirt import score_runs, start_session, track_sequence, tracker_params
+from simbench.pipelines.shirt_inputs import colour_labels
 from simbench.scenario import load_scenario
+from simbench.stage.build import build_stage
+from simbench.stage.rendering import render_frames
 
+
+REPO = Path(__file__).resolve().parents[1]
 
 # CI-sized database and training, no blur or supersampling
 _SMALL = {"sensor.motion_blur": False, "sensor.antialias": 1, "shirt_pipeline.database_size": 3000,
@@ -69,18 +80,11 @@ def test_run_writes_metrics_report_plots_and_poses(shirt_run):
     assert len(list(cache.glob("shirt_db_*.npz"))) == 1 and len(list(cache.glob("shirt_training_*.npz"))) == 1
 
 
-def test_the_run_tracks_each_frame_as_it_renders_and_keeps_no_frame(shirt_run):
-    """``simbench run`` feeds the shirt capture frame by frame and keeps neither the frames nor the id maps (a
-    15 s take held 4.3 GB before); its poses and scores are those of both methods run over the kept frames."""
-    from mocap.shirt.shirt_model import ShirtModel
-    from simbench.pipelines.shirt import score_runs, start_session, track_sequence, tracker_params
-    from simbench.pipelines.shirt_inputs import colour_labels
-    from simbench.stage.build import build_stage
-    from simbench.stage.rendering import render_frames
-
-    result, out, cache = shirt_run
-    assert result.sequence.frames is None and not result.sequence.ground_truth.id_maps
-    assert not (out / "ground_truth" / "ids.npz").exists()
+@pytest.fixture(scope="module")
+def tracked_again(shirt_run):
+    """The run's take rendered again with its frames kept, both methods tracked over them in this process, and the
+    compiled kernels' overloads added while they tracked (:func:`mocap.shirt.kernels.loaded_signatures`)."""
+    _, _, cache = shirt_run
     mp = pytest.MonkeyPatch()
     mp.setenv("SIMBENCH_CACHE_DIR", str(cache))
     try:
@@ -96,6 +100,30 @@ def test_the_run_tracks_each_frame_as_it_renders_and_keeps_no_frame(shirt_run):
     truth = [colour_labels(gt.id_maps[n], model.patch_colour) for n in gt.camera_names]
     runs = {"full": track_sequence(session.tracker(params), seq.frames, truth),
             "baseline": track_sequence(session.tracker(params.baseline()), seq.frames)}
+    return model, gt, runs, session, seq.frames, params
+
+
+# a fresh interpreter: this one compiled every kernel while the module's runs tracked
+_KERNELS_ADDED_WHILE_TRACKING = """
+import json, pickle, sys
+from mocap.shirt.kernels import loaded_signatures
+from simbench.pipelines.shirt import track_sequence
+session, frames, params = pickle.load(open(sys.argv[1], "rb"))
+trackers = [session.tracker(params), session.tracker(params.baseline())]
+before = loaded_signatures()
+for tracker in trackers:
+    track_sequence(tracker, frames)
+print(json.dumps(sorted(loaded_signatures() - before)))
+"""
+
+
+def test_the_run_tracks_each_frame_as_it_renders_and_keeps_no_frame(shirt_run, tracked_again):
+    """``simbench run`` feeds the shirt capture frame by frame and keeps neither the frames nor the id maps (a
+    15 s take held 4.3 GB before); its poses and scores are those of both methods run over the kept frames."""
+    result, out, _ = shirt_run
+    assert result.sequence.frames is None and not result.sequence.ground_truth.id_maps
+    assert not (out / "ground_truth" / "ids.npz").exists()
+    model, gt, runs, *_ = tracked_again
     poses = np.load(out / "shirt" / "poses.npz")
     for name, run in runs.items():
         np.testing.assert_array_equal(poses[f"{name}_q"], run.q)
@@ -104,6 +132,18 @@ def test_the_run_tracks_each_frame_as_it_renders_and_keeps_no_frame(shirt_run):
         if ".ms" not in key and "ms_per_frame" not in key:
             assert result.metrics[key] == value, key
     assert result.metrics["shirt.assisted_correct_rate"] > 0.4  # the ROC counts were gathered
+
+
+def test_a_tracker_loads_every_kernel_it_calls_when_it_is_made(tracked_again, tmp_path):
+    """Both methods' trackers compile (or load) their kernels when made: tracking a take adds no overload, so no
+    frame pays numba's loading (it was 290 of the first frame's 480 ms)."""
+    _, _, _, session, frames, params = tracked_again
+    take = tmp_path / "take.pkl"
+    take.write_bytes(pickle.dumps((session, frames, params)))
+    done = subprocess.run([sys.executable, "-c", _KERNELS_ADDED_WHILE_TRACKING, str(take)], capture_output=True, text=True,
+                          cwd=REPO, check=True)
+    added = json.loads(done.stdout.strip().splitlines()[-1])
+    assert added == []
 
 
 def test_a_shirt_failure_mid_take_is_recorded_and_the_run_is_kept(shirt_run, tmp_path_factory, monkeypatch):

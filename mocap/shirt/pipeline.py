@@ -96,6 +96,7 @@ from mocap.shirt.hypotheses import TrackerHypotheses
 from mocap.shirt.id_maps import border_band, reduced_view, silhouette, touches_border, without_stray_thin_bits, without_thin_bits
 from mocap.shirt.ik import Constraints, IKPriors, ShirtIK
 from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
+from mocap.shirt.kernels import load_kernels
 from mocap.shirt.kinematics import UPPER_NQ, UPPER_NV
 from mocap.shirt.settings import STAGES, CameraObservation, FrameEstimate, ShirtPipelineParams
 from mocap.shirt.shirt_model import ShirtModel
@@ -147,6 +148,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
             raise MocapInputError(f"ShirtTracker: {len(white_balance)} white-balance matrices for {C} cameras; give one per camera")
         if colour_model.n_colours != database.n_colours:
             raise MocapInputError(f"ShirtTracker: colour model has {colour_model.n_colours} colours, the database's shirt {database.n_colours}")
+        load_kernels()  # before the first frame, not on it
         self.model = ShirtModel(database.mjcf_text, database.geometry)
         self.kin = self.model.kin
         self.ik = ShirtIK(self.kin, database.geometry.body_names, self.cameras)
@@ -174,8 +176,7 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         self._thin_out: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (classified map, it without stray thin bits)
         self._cells: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # camera -> (foreground pixels, their cells in step 3's maps)
         self._init_hands()
-        self._root_active = np.zeros(UPPER_NV, bool)
-        self._root_active[:6] = True
+        self._root_active = np.arange(UPPER_NV) < 6  # the free joint's 6 velocities
         K = colour_model.n_colours
         self._colour_members = [np.flatnonzero(self.model.patch_colour == k) for k in range(K)]
         self._colour_order = np.argsort(self.model.patch_colour, kind="stable")
@@ -296,7 +297,6 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         if not p.keep_classification:
             est.cameras = []
         return est
-
 
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
