@@ -7,7 +7,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from difflib import get_close_matches
 
 import numpy as np
 
@@ -289,6 +291,28 @@ class ShirtPipelineParams:
     def baseline(self) -> "ShirtPipelineParams":
         """The baseline's settings: no pose prior (step 3), no adaptive white balance (step 5); the rest as the method's."""
         return replace(self, pose_prior=False, adaptive_white_balance=False)
+
+    def with_settings(self, settings: Mapping[str, object], where: str = "settings") -> "ShirtPipelineParams":
+        """These settings with some of the scalar fields (bool, int, float) replaced: an ablation such as
+        ``{"pose_prior": False}``. ``where`` names the mapping in the errors.
+
+        An unknown name, or a value of another type (an int is taken for a float, never a bool for a
+        number), raises :class:`MocapInputError` in one line naming it; the values are then checked as
+        every construction checks them.
+        """
+        kinds = {f.name: type(f.default) for f in fields(self) if type(f.default) in (bool, int, float)}
+        changes = {}
+        for name, value in settings.items():
+            kind = kinds.get(name)
+            if kind is None:
+                close = get_close_matches(name, kinds, n=1)
+                hint = f"did you mean {close[0]!r}?" if close else "see ShirtPipelineParams in mocap/shirt/settings.py"
+                raise MocapInputError(f"{where}.{name}: not a setting of the shirt tracker; {hint}")
+            numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if not (isinstance(value, bool) if kind is bool else numeric and (kind is float or isinstance(value, int))):
+                raise MocapInputError(f"{where}.{name}={value!r}: must be {'true or false' if kind is bool else 'a whole number' if kind is int else 'a number'}")
+            changes[name] = float(value) if kind is float else value
+        return replace(self, **changes)
 
 
 @dataclass

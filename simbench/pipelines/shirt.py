@@ -161,8 +161,9 @@ def track_sequence(tracker: ShirtTracker, frames: np.ndarray, truth_labels: list
 
 def tracker_params(scenario: Scenario) -> ShirtPipelineParams:
     """The full method's settings for a scenario's run: classification maps kept (for the ROC data), the hands
-    as ``[shirt_pipeline] hands`` says."""
-    return ShirtPipelineParams(keep_classification=True, hand_constraints=scenario.shirt_pipeline.hands)
+    as ``[shirt_pipeline] hands`` says, and ``[shirt_pipeline.settings]`` (the baseline is derived from these)."""
+    params = ShirtPipelineParams(keep_classification=True, hand_constraints=scenario.shirt_pipeline.hands)
+    return params.with_settings(scenario.shirt_pipeline.settings, where="shirt_pipeline.settings")
 
 
 class ShirtCapture:

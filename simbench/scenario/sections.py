@@ -12,7 +12,7 @@ from types import MappingProxyType
 from typing import Annotated, Literal, Mapping, Union
 
 import numpy as np
-from pydantic import Field, StrictBool, ValidationInfo, field_validator, model_serializer, model_validator
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, ValidationInfo, field_validator, model_serializer, model_validator
 
 from mocap.calib.boards import ARUCO_DICTIONARIES
 from mocap.errors import MocapInputError
@@ -433,11 +433,32 @@ class ShirtPipelineConfig(FrozenModel):
     baseline: StrictBool = True
     training_frames: Int = Field(60, ge=2, le=100_000, description="frames of other takes the colour model and IK covariances are trained on")
     hands: StrictBool = Field(True, description="the bare hands as two more targets of step 4, both methods (mocap/shirt/hands.py)")
+    settings: dict[str, Union[StrictBool, StrictInt, StrictFloat]] = Field(
+        default_factory=dict, description="the shirt tracker's settings for both methods, fields of "
+        "mocap.shirt.settings.ShirtPipelineParams (an ablation: `--set shirt_pipeline.settings.pose_prior=false`)")
+
+    @field_validator("settings")
+    @classmethod
+    def _settings_are_tracker_settings(cls, settings: dict) -> dict:
+        owned = {"keep_classification": "simbench keeps the classification of its runs",
+                 "hand_constraints": "use shirt_pipeline.hands"}
+        for name, why in owned.items():
+            if name in settings:
+                raise ValueError(f"{name} is not set here: {why}")
+        if settings:
+            # (on use: the shirt package costs 0.4 s to import, and only scenarios that set these pay it)
+            from mocap.shirt.settings import ShirtPipelineParams
+
+            try:
+                ShirtPipelineParams().with_settings(settings, where="shirt_pipeline.settings")
+            except MocapInputError as exc:
+                raise ValueError(str(exc)) from None
+        return settings
 
     @model_serializer(mode="wrap")
     def _omit_default_hands(self, handler):
-        # scenarios written before the hands serialise (and hash) as they did
-        return omit_defaults(handler(self), {"hands": True})
+        # scenarios written before the hands and the settings serialise (and hash) as they did
+        return omit_defaults(handler(self), {"hands": True, "settings": {}})
 
 
 class PipelineConfig(FrozenModel):
