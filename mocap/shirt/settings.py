@@ -308,9 +308,14 @@ class ShirtPipelineParams:
                 close = get_close_matches(name, kinds, n=1)
                 hint = f"did you mean {close[0]!r}?" if close else "see ShirtPipelineParams in mocap/shirt/settings.py"
                 raise MocapInputError(f"{where}.{name}: not a setting of the shirt tracker; {hint}")
-            numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
-            if not (isinstance(value, bool) if kind is bool else numeric and (kind is float or isinstance(value, int))):
-                raise MocapInputError(f"{where}.{name}={value!r}: must be {'true or false' if kind is bool else 'a whole number' if kind is int else 'a number'}")
+            if kind is bool:
+                ok, wanted = isinstance(value, bool), "true or false"
+            elif kind is int:
+                ok, wanted = isinstance(value, int) and not isinstance(value, bool), "a whole number"
+            else:
+                ok, wanted = isinstance(value, (int, float)) and not isinstance(value, bool), "a number"
+            if not ok:
+                raise MocapInputError(f"{where}.{name}={value!r}: must be {wanted}")
             changes[name] = float(value) if kind is float else value
         return replace(self, **changes)
 

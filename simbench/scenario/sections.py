@@ -456,7 +456,7 @@ class ShirtPipelineConfig(FrozenModel):
         return settings
 
     @model_serializer(mode="wrap")
-    def _omit_default_hands(self, handler):
+    def _omit_later_defaults(self, handler):
         # scenarios written before the hands and the settings serialise (and hash) as they did
         return omit_defaults(handler(self), {"hands": True, "settings": {}})
 
