@@ -47,6 +47,9 @@ one but those of the pose prior, steps 3-4, and of step 5):
   alone can settle with an arm pointing at a camera, hidden in front of the torso;
 * the first frame runs twice, the second pass tracking from the first's pose
   (``lock_on_passes``);
+* without a previous pose (the first pass), step 4 is also solved from step 1's classification, and the pose
+  that agrees better with step 1 is kept: step 3's only prior is then the blend, and a blend far off
+  classifies the shirt after itself;
 * step 0's coarse mask loses the crop pixels that look as in the empty scene
   (:meth:`mocap.shirt.background.BackgroundModel.empty_match`);
 * the patch split leaves out each colour's classified pieces thinner than 3 working
@@ -69,7 +72,8 @@ rendered id map (``distance_reduce``).
 
 Stages are timed (``FrameEstimate.timings_ms``); settings, :data:`STAGES` and the output are in
 :mod:`mocap.shirt.settings`.  :class:`ShirtTracker`'s parts: :mod:`mocap.shirt.global_fit` (step 2b),
-:mod:`mocap.shirt.hypotheses` (lock-on, recovery), :mod:`mocap.shirt.hands`; id-map helpers: :mod:`mocap.shirt.id_maps`.
+:mod:`mocap.shirt.hypotheses` (lock-on, recovery), :mod:`mocap.shirt.hands`, :mod:`mocap.shirt.white_balance_update`
+(step 5); id-map helpers: :mod:`mocap.shirt.id_maps`.
 """
 
 from __future__ import annotations
@@ -77,7 +81,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from mocap.calibration import Calibration
@@ -85,10 +88,9 @@ from mocap.errors import MocapInputError
 from mocap.shirt.arm_search import ArmSearch
 from mocap.shirt.background import BackgroundModel
 from mocap.shirt.classify import (PatchDistances, assign_patches, best_reference, classify_gaussian, classify_pose_assisted, crop_image,
-                                  crop_reduced_mask, crop_view, foreground_pixels, nearest_colour, other_distance, patch_centroids,
+                                  crop_reduced_mask, crop_view, foreground_pixels, other_distance, patch_centroids,
                                   patch_distances)
-from mocap.shirt.colour_model import (ColourModel, ReferenceIlluminations, initial_white_balance, labelled_colour_means, linear_lookup,
-                                     solve_white_balance)
+from mocap.shirt.colour_model import ColourModel, ReferenceIlluminations, initial_white_balance, linear_lookup
 from mocap.shirt.global_fit import GlobalFit
 from mocap.shirt.hands import HandTracking
 from mocap.shirt.histogram_search import search_shirt
@@ -100,6 +102,7 @@ from mocap.shirt.kernels import load_kernels
 from mocap.shirt.kinematics import UPPER_NQ, UPPER_NV
 from mocap.shirt.settings import STAGES, CameraObservation, FrameEstimate, ShirtPipelineParams
 from mocap.shirt.shirt_model import ShirtModel
+from mocap.shirt.white_balance_update import WhiteBalanceUpdate
 
 __all__ = ["STAGES", "ShirtPipelineParams", "CameraObservation", "FrameEstimate", "ShirtTracker", "initial_white_balance"]
 
@@ -115,7 +118,7 @@ class _Crop:
     other_distances: np.ndarray | None
 
 
-class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
+class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking, WhiteBalanceUpdate):
     """Runs the pipeline frame after frame for a rig of calibrated cameras.
 
     Parameters
@@ -250,41 +253,10 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
 
         # 4. inverse kinematics
         t = time.perf_counter()
-        if p.ik_priors:
-            priors = [(q_b, self.priors.blend_std)]
-            if self.q_prev is not None:
-                priors.append((self.q_prev, self.motion_std()))
-        else:
-            priors = [(q_b, np.full(UPPER_NV, p.baseline_damping_std))]
-        sil = {ci: o.silhouette for ci, o in enumerate(est.cameras) if o.silhouette is not None}
         if len(cons):
-            res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
-                                silhouettes=sil, rel_tol=p.ik_rel_tol)
-            if (p.ik_priors or p.baseline_previous_start) and self.q_prev is not None and est.q_prior is not self.q_prev:
-                # also start from the previous pose (a blend far off can hold the solver in a
-                # local minimum); keep the lower energy.  The baseline does this too: a start
-                # is not a prior term (its energy has none towards the previous pose)
-                alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
-                res = alt if alt.cost < res.cost else res
-            for _ in range(p.correspondence_passes - 1):
-                # the two patches of a colour were told apart (and anchored) by the blended
-                # pose; a blend far off swaps them: split again with the solved pose
-                cons2 = self.reassign(res.q, est.cameras, lin)
-                if len(cons2):
-                    res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
-                    cons = cons2
-            lost = res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px))
-            if p.ik_priors and p.recovery_passes and lost:
-                # the centroids are far from the pose: the previous pose (which the motion prior
-                # holds on to) is probably wrong, e.g. while the tracker is still locking on
-                # from a far-off first blend; loosen that prior and split and solve again
-                q = self._loose_solve(res.q, est, lin, sil, self._loose_priors(q_b), p.recovery_passes)
-            else:
-                q = res.q
-            if p.ik_priors and p.lock_on_yaws and self._frames == 0:
-                q = self._root_hypotheses(q, est, lin, sil)
-            if p.ik_priors and p.arm_hypotheses:
-                q = self._check_arms(q, est, lin, sil, lost)
+            q = self._solve(est, cons, lin)
+            if p.pose_prior and p.ik_priors and self.q_prev is None:
+                q = self._lock_on_step_1(q, est, lin)
         else:
             q = q_b.copy()
         T["ik"] = (time.perf_counter() - t) * 1e3
@@ -297,6 +269,47 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
         if not p.keep_classification:
             est.cameras = []
         return est
+
+    def _solve(self, est: FrameEstimate, cons: Constraints, lin: list[np.ndarray | None]) -> np.ndarray:
+        """Step 4 of a frame from its constraints ``cons`` (steps 1-3 in ``est``): the solved pose, after
+        the recovery of a lost frame, the lock-on's headings and the arm checks (:mod:`mocap.shirt.hypotheses`)."""
+        p = self.params
+        q_b = est.q_blend
+        if p.ik_priors:
+            priors = [(q_b, self.priors.blend_std)]
+            if self.q_prev is not None:
+                priors.append((self.q_prev, self.motion_std()))
+        else:
+            priors = [(q_b, np.full(UPPER_NV, p.baseline_damping_std))]
+        sil = {ci: o.silhouette for ci, o in enumerate(est.cameras) if o.silhouette is not None}
+        res = self.ik.solve(est.q_prior if est.q_prior is not None else q_b, cons, priors, iterations=p.ik_iterations,
+                            silhouettes=sil, rel_tol=p.ik_rel_tol)
+        if (p.ik_priors or p.baseline_previous_start) and self.q_prev is not None and est.q_prior is not self.q_prev:
+            # also start from the previous pose (a blend far off can hold the solver in a
+            # local minimum); keep the lower energy.  The baseline does this too: a start
+            # is not a prior term (its energy has none towards the previous pose)
+            alt = self.ik.solve(self.q_prev, cons, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
+            res = alt if alt.cost < res.cost else res
+        for _ in range(p.correspondence_passes - 1):
+            # the two patches of a colour were told apart (and anchored) by the blended
+            # pose; a blend far off swaps them: split again with the solved pose
+            cons2 = self.reassign(res.q, est.cameras, lin)
+            if len(cons2):
+                res = self.ik.solve(res.q, cons2, priors, iterations=p.ik_iterations, silhouettes=sil, rel_tol=p.ik_rel_tol)
+                cons = cons2
+        lost = res.centroid_rms_px > p.poor_fit * float(np.mean(cons.size_px))
+        if p.ik_priors and p.recovery_passes and lost:
+            # the centroids are far from the pose: the previous pose (which the motion prior
+            # holds on to) is probably wrong, e.g. while the tracker is still locking on
+            # from a far-off first blend; loosen that prior and split and solve again
+            q = self._loose_solve(res.q, est, lin, sil, self._loose_priors(q_b), p.recovery_passes)
+        else:
+            q = res.q
+        if p.ik_priors and p.lock_on_yaws and self._frames == 0:
+            q = self._root_hypotheses(q, est, lin, sil)
+        if p.ik_priors and p.arm_hypotheses:
+            q = self._check_arms(q, est, lin, sil, lost)
+        return q
 
     def finish(self, q: np.ndarray, obs: list[CameraObservation], lin: list[np.ndarray | None]) -> None:
         """Close a frame with pose ``q``: step 5 (if adaptive) and remember ``q`` as the previous pose."""
@@ -563,38 +576,3 @@ class ShirtTracker(GlobalFit, TrackerHypotheses, HandTracking):
     def _failed(self, T: dict, obs: list[CameraObservation], lin: list):
         C = len(self.cameras)
         return FrameEstimate(np.full(UPPER_NQ, np.nan), np.full(UPPER_NQ, np.nan), np.zeros(C), T, obs), Constraints.empty(), lin
-
-
-    def _update_white_balance(self, ci: int, q: np.ndarray, o: CameraObservation, lin: np.ndarray, rend) -> None:
-        """Step 5: ``W*`` from the colours under the final pose's id map ``rend`` (at ``wb_size``), kept if it
-        explains those colours (``wb_min_agreement``), blended in by ``wb_smoothing`` where the light is steady."""
-        p = self.params
-        small = cv2.resize(lin, (p.wb_size, p.wb_size), interpolation=cv2.INTER_AREA) if p.wb_size != o.view.size else lin
-        means, counts = labelled_colour_means(small, rend.colour, self.colours.n_colours, erode_px=1, min_pixels=6, robust=True)
-        W = solve_white_balance(means, self.colours.means, np.sqrt(counts), min_colours=4, whiten=self.colours.whiten)
-        if W is None or not np.all(np.isfinite(W)):
-            return
-        # keep W* only if it explains the colours under the final pose at least as well as
-        # the current W (a pose that is off labels pixels wrongly, and W* would follow)
-        lab = rend.colour.ravel()
-        on = lab >= 0
-        if on.sum() < 20:
-            return
-        x = small.reshape(-1, 3)[on]
-        def agreement(Wm: np.ndarray) -> float:
-            best, score = nearest_colour(self.colours.distances(x, Wm))
-            return float(np.mean((best == lab[on]) & (score < p.assisted_threshold)))
-        new = agreement(W)
-        if new + 0.02 < agreement(self.W[ci]):
-            return
-        # ... and only if it explains a fair share of them at all: when the pose is far off (the
-        # first lock-on pass of shirt_jumping_jacks seed 7) both W fail, W* fits whatever the pose
-        # happens to cover (the black trousers: W* = 0.13 I, every pixel then classifies as the
-        # black patch) and the next frames lock onto that
-        if new < p.wb_min_agreement:
-            return
-        # steady light: part of the way (one frame's fit carries its pose's errors); a change of light: all of it
-        a = p.wb_smoothing if not self._poor[ci] else 1.0
-        W = a * W + (1.0 - a) * self.W[ci]
-        self.W[ci] = W
-        self.references[ci].offer(W)
