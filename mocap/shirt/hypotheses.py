@@ -93,8 +93,8 @@ class TrackerHypotheses:
         a blend far off (issue 18: shirt_outdoor seeds 46, 51 and 56, blends 80 cm off) classifies
         the shirt after itself, so that every heading of :meth:`_root_hypotheses` solved 45-80 cm
         off; from step 1's classification, as the baseline tracks, the same frames locked on
-        within 2 cm.  Neither is always right (with a CI-sized database step 1's was 25-63 cm off
-        on shirt_outdoor seeds 43 and 45, where step 3's held), so both are solved and judged.
+        within 2 cm.  Neither is always right (with a CI-sized database step 1's alone was 62-63 cm
+        off on shirt_outdoor seeds 43 and 45, where step 3's held), so both are solved and judged.
         """
         step3 = [(o.final, o.silhouette) for o in est.cameras]
         for o in est.cameras:
