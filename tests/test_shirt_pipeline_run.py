@@ -313,3 +313,30 @@ def test_the_full_method_locks_on_whether_step_3_or_step_1_classifies_the_first_
     m = outdoor_lock_ons[seed]
     assert m["shirt.tracked_fraction"] == 1.0
     assert m["shirt.joint_rmse_cm"] < 3.0
+
+
+def test_the_lock_on_script_records_each_stage_without_changing_the_tracking(shirt_run, monkeypatch):
+    """scripts/shirt_lock_on.py (the README's table of what the first frame's lock-on buys): the poses it records
+    are the tracker's own (the frame's output equal to the bit to an untouched tracker's), and the first pass keeps
+    a pose that agrees with step 1 at least as well as either classification's solve after the headings (the
+    lock-on only keeps what agrees better)."""
+    sys.path.insert(0, str(REPO / "scripts"))
+    try:
+        from shirt_lock_on import STAGES, record_lock_on
+    finally:
+        sys.path.remove(str(REPO / "scripts"))
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(shirt_run[2]))
+    stage = build_stage(load_scenario("scenarios/shirt_office.toml", overrides={**_SMALL, "duration_s": 0.1, "motion.start_s": 0.7}))
+    seq = render_frames(stage, keep_frames=True, keep_ids=True)
+    session = start_session(stage, seq.frames, seq.ground_truth)
+    params = tracker_params(stage.scenario)
+    recorded_by = session.tracker(params)
+    rec = record_lock_on(recorded_by, list(seq.frames[0]))
+    assert "_root_hypotheses" not in vars(recorded_by) and "_lock_on_step_1" not in vars(recorded_by)
+    untouched = session.tracker(params).process(list(seq.frames[0])).q
+    assert np.array_equal(rec["frame0"], untouched)
+    for s in STAGES:
+        assert rec[s].shape == (18,) and np.all(np.isfinite(rec[s]))
+    a = {s: float(rec["agreement:" + s]) for s in STAGES[:-1]}
+    assert a["pass1"] >= max(a["step3+h"], a["step1+h"])
+    assert 0.0 < a["step3"] <= 1.0 and 0.0 < a["step1"] <= 1.0
