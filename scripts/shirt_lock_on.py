@@ -31,8 +31,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _one_line_errors import run_main  # noqa: E402
 from mocap.shirt.kinematics import UPPER_BODY_JOINTS  # noqa: E402
 from mocap.shirt.pipeline import ShirtTracker  # noqa: E402
+from simbench.errors import SimbenchInputError  # noqa: E402
 from simbench.pipelines.shirt import start_session, tracker_params  # noqa: E402
 from simbench.render.gl_context import configure_gl_environment  # noqa: E402
 from simbench.scenario.loading import load_scenario, parse_overrides  # noqa: E402
@@ -86,12 +88,18 @@ def main() -> None:
     ap.add_argument("--far", type=float, default=10.0, help="cm: a stage's pose this far off counts as lost")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="override a scenario field (TOML value)")
     a = ap.parse_args()
+    if a.seeds < 1:
+        raise SimbenchInputError(f"--seeds: got {a.seeds}; give how many seeds to run, 1 or more")
     overrides = parse_overrides(a.set)
+    # every seed's scenario checked before any work (a bad field or a scenario without the shirt: one line, exit 2)
+    scenarios = [load_scenario(a.scenario, {**overrides, "seed": seed}) for seed in range(a.seed_start, a.seed_start + a.seeds)]
+    if not scenarios[0].subject.shirt:
+        raise SimbenchInputError(f"{a.scenario}: field 'subject.shirt': got false; the lock-on is the colour shirt's, "
+                                 "give a shirt scenario (scenarios/shirt_*.toml)")
     configure_gl_environment()
     print(f"{'seed':>4} " + " ".join(f"{s:>15}" for s in STAGES) + "   (joint RMSE cm / agreement with step 1)")
     errors = []
-    for seed in range(a.seed_start, a.seed_start + a.seeds):
-        sc = load_scenario(a.scenario, {**overrides, "seed": seed})
+    for sc in scenarios:
         # the first three frames only: the session's empty-scene frames are rendered at the take's first three
         # frame times (simbench.pipelines.shirt_inputs.render_empty_frames), so a shorter take would change them
         stage = build_stage(sc.with_overrides({"duration_s": 3.0 / sc.fps}))
@@ -104,7 +112,7 @@ def main() -> None:
         err = {s: float(np.sqrt(np.mean(np.sum((tracker.kin.joint_centres(rec[s][None])[0] - truth) ** 2, axis=1)))) * 100
                for s in STAGES}
         errors.append([err[s] for s in STAGES])
-        print(f"{seed:>4} " + " ".join(f"{err[s]:>7.1f} / {float(rec['agreement:' + s]):.3f}" for s in STAGES), flush=True)
+        print(f"{sc.seed:>4} " + " ".join(f"{err[s]:>7.1f} / {float(rec['agreement:' + s]):.3f}" for s in STAGES), flush=True)
     e = np.array(errors)
     either = np.minimum(e[:, STAGES.index("step3")], e[:, STAGES.index("step1")])  # the better of the two solves before the headings
     print(f"over {a.far:g} cm: " + ", ".join(f"{s} {int((e[:, i] > a.far).sum())} of {len(e)}" for i, s in enumerate(STAGES))
@@ -113,4 +121,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

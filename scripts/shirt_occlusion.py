@@ -25,20 +25,20 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _one_line_errors import run_main  # noqa: E402
 from mocap.shirt.kinematics import UPPER_BODY_JOINTS  # noqa: E402
 from mocap.shirt.pipeline import ShirtPipelineParams  # noqa: E402
 from mocap.shirt.shirt_model import CropView, ShirtModel  # noqa: E402
 from mocap.shirt.zbuffer import rasterise_faces  # noqa: E402
 from simbench.pipelines.shirt import start_session, track_sequence  # noqa: E402
 from simbench.render.gl_context import configure_gl_environment  # noqa: E402
-from simbench.scenario import load_scenario  # noqa: E402
+from simbench.scenario.loading import load_scenario, parse_overrides  # noqa: E402
 from simbench.stage.build import build_stage  # noqa: E402
 from simbench.stage.rendering import render_frames  # noqa: E402
 
@@ -94,13 +94,7 @@ def main() -> None:
         seeds = list(range(lo, hi + 1))
     else:
         seeds = [int(x) for x in a.seeds.split(",")]
-    overrides = {}
-    for item in a.set:
-        key, _, value = item.partition("=")
-        try:
-            overrides[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:  # a bare word: a string
-            overrides[key] = value
+    overrides = parse_overrides(a.set)
     configure_gl_environment()
     print(f"{'seed':>4} {'hidden/near':>14} {'full':>6} {'base':>6} {'ratio':>6} | {'plain: full':>11} {'base':>6} {'ratio':>6} "
           f"| {'near: full':>12} {'base':>6} {'ratio':>6}")
@@ -135,4 +129,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
