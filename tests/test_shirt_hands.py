@@ -13,7 +13,7 @@ from mocap.calibration import Calibration, Camera
 from mocap.errors import MocapInputError
 from mocap.shirt.classify import Classification, distance_to_patches
 from mocap.shirt.colour_model import ColourModel
-from mocap.shirt.hands import HandTargets, _centre_of_mass, find_hands, fit_skin_colour, skin_pieces
+from mocap.shirt.hands import HandTargets, _centre_of_mass, find_hands, fit_skin_colour, skin_pieces, widened_skin
 from mocap.shirt.ik import IKPriors
 from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
 from mocap.shirt.settings import CameraObservation
@@ -103,6 +103,28 @@ def _pieces(blobs: list[tuple[int, int]], size: int = 64) -> HandTargets:
 
 def _sleeve(x0: int, x1: int, y: int, size: int = 64) -> np.ndarray:
     return np.array([y * size + x for x in range(x0, x1)])
+
+
+def test_the_widened_skin_takes_in_shaded_skin_and_keeps_its_mean():
+    """widened_skin: a colour scaled by shading (0.5 to 1.5 of the skin's mean) is within 1 unit of the widened skin,
+    where the fitted one puts it 6-13 units away; another hue is still far; the mean stays; every direction's SD is
+    at least the floor; with no widening the covariance is the fitted one."""
+    rng = np.random.default_rng(3)
+    mu = np.array([0.198, 0.122, 0.102])  # shirt_walk_lamp seed 1's skin, white-balanced linear RGB
+    fitted = fit_skin_colour(mu + rng.normal(0.0, 0.01, (400, 3)))
+    wide = widened_skin(fitted, 0.5, 0.05)
+    np.testing.assert_array_equal(wide.means, fitted.means)
+    eye = np.eye(3)
+    for scale in (0.5, 0.75, 1.5):
+        d_fit = fitted.distances((scale * fitted.means[0])[None], eye)[0, 0]
+        d_wide = wide.distances((scale * fitted.means[0])[None], eye)[0, 0]
+        assert d_fit > 5.0
+        assert d_wide == pytest.approx(abs(scale - 1.0) / 0.5, abs=0.05)  # 1 SD of shading per 0.5 of the mean
+    other_hue = np.array([[0.10, 0.12, 0.20]])  # bluish, about as bright
+    assert wide.distances(other_hue, eye)[0, 0] > 3.0
+    sd_least = np.sqrt(np.linalg.eigvalsh(wide.covariances[0]).min())
+    assert sd_least >= 0.05 * np.linalg.norm(mu) * (1 - 1e-9)
+    np.testing.assert_allclose(widened_skin(fitted, 0.0, 0.0).covariances, fitted.covariances, atol=1e-15)
 
 
 def test_the_sleeve_a_piece_borders_tells_the_hands_apart_where_the_pose_has_them_crossed():

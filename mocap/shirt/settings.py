@@ -210,6 +210,10 @@ class ShirtPipelineParams:
         centroid a step-4 target with an SD of ``hand_std`` shirt sizes.  0.015 on cached frames of
         the seed tables (medians, shirt_jumping_jacks / shirt_walk_lamp / shirt_tungsten_off seeds
         1-10): 0.01 1.97 / 5.11 / 2.17 cm, 0.015 1.71 / 4.51 / 2.05, 0.025 1.84 / 5.04 / 2.02.
+    skin_shading, skin_floor
+        The skin colour as a not-shirt colour of steps 1 and 3 (:func:`mocap.shirt.hands.widened_skin`): its
+        covariance widened along its mean by ``skin_shading`` of the mean (shading scales a colour) and floored
+        at ``skin_floor`` of the mean's norm in every direction; the hands' own test keeps the fitted colour.
     """
 
     histogram: HistogramSearchParams = HistogramSearchParams()
@@ -270,6 +274,8 @@ class ShirtPipelineParams:
     hand_min_pixels: int = 8
     skin_threshold: float = 3.0
     head_sample: float = 0.08
+    skin_shading: float = 0.5
+    skin_floor: float = 0.05
 
     def __post_init__(self) -> None:
         least = {"wb_every": 1, "distance_reduce": 1, "render_size": 8 * self.distance_reduce, "work_size": 16, "wb_size": 8,
@@ -284,6 +290,8 @@ class ShirtPipelineParams:
         for name in ("hand_std", "hand_gate", "skin_threshold", "head_sample"):
             require(getattr(self, name) > 0, self, name, "must be positive", error=MocapInputError)
         require(self.hand_min_pixels >= 1, self, "hand_min_pixels", "must be at least 1", error=MocapInputError)
+        for name in ("skin_shading", "skin_floor"):
+            require(getattr(self, name) >= 0, self, name, "must be at least 0 (0: the fitted skin colour as it is)", error=MocapInputError)
         require(0.0 < self.steady_motion_scale <= 10.0, self, "steady_motion_scale",
                 "must be in (0, 10] (1: the trained motion prior on every frame)", error=MocapInputError)
         require(self.steady_after_frames >= 0, self, "steady_after_frames", "must be at least 0", error=MocapInputError)
