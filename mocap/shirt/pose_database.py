@@ -31,6 +31,9 @@ weighted quaternion mean of the largest cluster (``scipy.spatial.transform.Rotat
 from __future__ import annotations
 
 import json
+import os
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -347,14 +350,19 @@ class PoseDatabase:
         """Write one ``.npz`` (compressed); written to a temporary name and renamed."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".partial.npz")
+        # the temporary name is this process's own: two processes that saved at once into one shared name
+        # interleaved their writes, and the renamed file was corrupt for every later run
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")
         meta = dict(self.meta, format_version=FORMAT_VERSION, n_poses=len(self))
-        np.savez_compressed(tmp, tiny=self.tiny, hinges=self.hinges, view_quat=self.view_quat,
-                            box_centre_m=self.box_centre_m, box_side_m=self.box_side_m, mjcf_text=np.array(self.mjcf_text),
-                            meta=np.array(json.dumps(meta)), pca_mean=self.pca_mean, pca_basis=self.pca_basis,
-                            index_bytes=np.asarray(self.index_bytes, np.uint8), hinge_names=np.array(UPPER_HINGES),
-                            **self.geometry.to_arrays())
-        tmp.replace(path)
+        try:
+            np.savez_compressed(tmp, tiny=self.tiny, hinges=self.hinges, view_quat=self.view_quat,
+                                box_centre_m=self.box_centre_m, box_side_m=self.box_side_m, mjcf_text=np.array(self.mjcf_text),
+                                meta=np.array(json.dumps(meta)), pca_mean=self.pca_mean, pca_basis=self.pca_basis,
+                                index_bytes=np.asarray(self.index_bytes, np.uint8), hinge_names=np.array(UPPER_HINGES),
+                                **self.geometry.to_arrays())
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod
@@ -363,10 +371,17 @@ class PoseDatabase:
         if not path.is_file():
             raise InputFileError(path, "pose database not found", "build it with `simbench shirt build-db --out FILE`")
         try:
-            z = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise InputFileError(path, f"not a pose database ({exc})", "rebuild it with `simbench shirt build-db`") from None
-        with z:
+            return cls._read(path)
+        except InputFileError:
+            raise
+        except (OSError, ValueError, EOFError, KeyError, RuntimeError, zipfile.BadZipFile, zlib.error) as exc:
+            # a truncated or corrupt file fails only when an array is read, with zlib's, zipfile's or faiss's own message
+            raise InputFileError(path, f"not a readable pose database ({type(exc).__name__}: {exc})",
+                                 "rebuild it with `simbench shirt build-db`") from None
+
+    @classmethod
+    def _read(cls, path: Path) -> "PoseDatabase":
+        with np.load(path, allow_pickle=False) as z:
             files = set(z.files)
             need = {"tiny", "hinges", "view_quat", "box_centre_m", "box_side_m", "mjcf_text", "meta", "pca_mean", "pca_basis", "index_bytes"}
             if not need <= files:

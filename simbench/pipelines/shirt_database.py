@@ -27,13 +27,16 @@ import json
 import logging
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, ContextManager
+from typing import Callable, ContextManager, Iterator
 
 import numpy as np
+from filelock import FileLock, Timeout
 from scipy.spatial.transform import Rotation
 
+from mocap.errors import InputFileError
 from mocap.shirt.pose_database import PoseDatabase, tiny_id_map
 from mocap.shirt.geometry import SHIRT_BODIES, ShirtGeometry
 from mocap.shirt.shirt_model import ShirtModel
@@ -53,6 +56,7 @@ __all__ = [
     "render_entry",
     "build_database",
     "cache_dir",
+    "cache_lock",
     "default_database_path",
     "ensure_database",
     "ProgressFactory",
@@ -222,23 +226,57 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
     """Load the database at ``path`` (default: the cache), building it first when missing.
 
     ``progress_factory`` shows the build's progress (the command line passes its progress
-    bar); without it the build reports only its start and end (``logging``).
+    bar); without it the build reports only its start and end (``logging``). Processes
+    that want the same file at once build it once (:func:`cache_lock`); a cached file that
+    cannot be read is built again, while an unreadable file the user named is an error.
     """
     named = path is not None
     path = Path(path) if path is not None else default_database_path(params, sampling)
-    if path.is_file():
-        return PoseDatabase.load(path)
-    where = (f"shirt_pipeline.database = {str(path)!r} does not exist" if named
-             else f"no cached shirt pose database for this subject and database_size ({path})")
-    log.warning("%s: building it now, %d poses (how long it takes is said 10 s in; `simbench shirt build-db` "
-                "builds it ahead of a run)", where, sampling.n_poses)
-    estimate = _BuildEstimate(int(sampling.n_poses))
-    if progress_factory is None:
-        db = build_database(params, sampling, progress=estimate.advance)
-    else:
-        prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
-        with prog:
-            db = build_database(params, sampling, progress=lambda n: (advance(n), estimate.advance(n)))
-    db.save(path)
+    with cache_lock(path):
+        if path.is_file():
+            try:
+                return PoseDatabase.load(path)
+            except InputFileError as exc:
+                if named:
+                    raise
+                log.warning("the cached shirt pose database %s cannot be read (%s): building it again", path, exc.problem)
+        where = (f"shirt_pipeline.database = {str(path)!r} does not exist" if named
+                 else f"no cached shirt pose database for this subject and database_size ({path})")
+        log.warning("%s: building it now, %d poses (how long it takes is said 10 s in; `simbench shirt build-db` "
+                    "builds it ahead of a run)", where, sampling.n_poses)
+        estimate = _BuildEstimate(int(sampling.n_poses))
+        if progress_factory is None:
+            db = build_database(params, sampling, progress=estimate.advance)
+        else:
+            prog, advance = progress_factory(f"shirt database ({sampling.n_poses} poses)", int(sampling.n_poses))
+            with prog:
+                db = build_database(params, sampling, progress=lambda n: (advance(n), estimate.advance(n)))
+        db.save(path)
     log.info("wrote %s (%d poses)", path, len(db))
     return db
+
+
+@contextmanager
+def cache_lock(path: str | Path) -> Iterator[None]:
+    """Held while a file at ``path`` is looked for and, when missing, built and written: a second process that
+    wants the same file waits (saying so once), then finds it written.
+
+    Why: on a fresh machine the two processes of ``simbench sweep -j 2`` both found the database missing, built
+    it at once and wrote it through one temporary name; the file they left was corrupt, and every later shirt
+    run failed to read it (session 27). The lock file lives in the cache folder's ``locks/`` (named by a hash of
+    ``path``), never beside a file the user named. ``filelock``: an OS lock that is released when its process
+    dies, so a killed build does not block the next one.
+    """
+    key = hashlib.sha256(str(Path(path).resolve()).encode()).hexdigest()[:16]
+    folder = cache_dir() / "locks"
+    folder.mkdir(parents=True, exist_ok=True)
+    lock = FileLock(folder / f"{key}.lock")
+    try:
+        lock.acquire(blocking=False)
+    except Timeout:
+        log.warning("waiting for another process that is writing %s", path)
+        lock.acquire()
+    try:
+        yield
+    finally:
+        lock.release()

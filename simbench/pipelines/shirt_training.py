@@ -12,7 +12,10 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,7 +28,7 @@ from mocap.shirt.pose_database import PoseDatabase
 from mocap.shirt.kinematics import UPPER_NV
 from mocap.shirt.shirt_model import ShirtModel
 from simbench.errors import SimbenchInputError
-from simbench.pipelines.shirt_database import cache_dir
+from simbench.pipelines.shirt_database import cache_dir, cache_lock
 from simbench.pipelines.shirt_inputs import colour_labels, session_inputs
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
@@ -167,19 +170,31 @@ def train_shirt_pipeline(scenario: Scenario, db: PoseDatabase, n_frames: int,
 
 
 def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> ShirtTraining:
-    """The cached training for this scenario's rig (trained and cached when missing)."""
+    """The cached training for this scenario's rig (trained and cached when missing or unreadable; processes that
+    want it at once train once, :func:`~simbench.pipelines.shirt_database.cache_lock`)."""
     path = cache_dir() / f"shirt_training_{_training_key(scenario, db, n_frames)}.npz"
-    if path.is_file():
-        with np.load(path, allow_pickle=False) as z:
-            cm = ColourModel(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
-            pr = IKPriors(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
-            return ShirtTraining(cm, pr, json.loads(str(z["info"])))
-    log.info("shirt training %s missing: training on %d frames of other takes", path.name, n_frames)
-    tr = train_shirt_pipeline(scenario, db, n_frames)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".partial.npz")
-    np.savez(tmp, means=tr.colour_model.means, covariances=tr.colour_model.covariances, names=np.array(tr.colour_model.names),
-             centroid_cov=tr.priors.centroid_cov, blend_std=tr.priors.blend_std, motion_std=tr.priors.motion_std,
-             n_frames=np.array(tr.priors.n_frames), info=np.array(json.dumps(tr.info)))
-    tmp.replace(path)
+    with cache_lock(path):
+        if path.is_file():
+            try:
+                return _read_training(path)
+            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+                log.warning("the cached shirt training %s cannot be read (%s: %s): training again", path, type(exc).__name__, exc)
+        log.info("shirt training %s missing: training on %d frames of other takes", path.name, n_frames)
+        tr = train_shirt_pipeline(scenario, db, n_frames)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")  # this process's own (see PoseDatabase.save)
+        try:
+            np.savez(tmp, means=tr.colour_model.means, covariances=tr.colour_model.covariances, names=np.array(tr.colour_model.names),
+                     centroid_cov=tr.priors.centroid_cov, blend_std=tr.priors.blend_std, motion_std=tr.priors.motion_std,
+                     n_frames=np.array(tr.priors.n_frames), info=np.array(json.dumps(tr.info)))
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
     return tr
+
+
+def _read_training(path: Path) -> ShirtTraining:
+    with np.load(path, allow_pickle=False) as z:
+        cm = ColourModel(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
+        pr = IKPriors(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
+        return ShirtTraining(cm, pr, json.loads(str(z["info"])))

@@ -1,0 +1,109 @@
+"""The colour shirt's cached pose database and training: several processes at once, and unreadable files
+(simbench/pipelines/shirt_database.py, shirt_training.py; mocap/shirt/pose_database.py)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mocap.errors import InputFileError
+from mocap.shirt.colour_model import ColourModel
+from mocap.shirt.ik import IKPriors
+from mocap.shirt.pose_database import PoseDatabase
+from simbench.pipelines import shirt_database, shirt_training
+from simbench.pipelines.shirt_database import PoseSampling, build_database, cache_lock, default_database_path, ensure_database
+from simbench.pipelines.shirt_training import ShirtTraining, ensure_training
+from simbench.scenario.loading import load_scenario
+from simbench.scenes.anthropometry import BodyParams
+
+
+SAMPLING = PoseSampling(n_poses=60, seed=3)
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def tiny_db() -> PoseDatabase:
+    return build_database(BodyParams(), SAMPLING)
+
+
+def _no_build(*args, **kwargs):
+    raise AssertionError("built the database again")
+
+
+def _truncated_copy(db: PoseDatabase, path) -> bytes:
+    """Write ``db`` at ``path`` cut to half its bytes (what a killed or interleaved write leaves); the bytes."""
+    db.save(path)
+    data = path.read_bytes()[: path.stat().st_size // 2]
+    path.write_bytes(data)
+    return data
+
+
+def test_a_builder_that_finds_the_lock_held_waits_and_loads_the_file_written_meanwhile(tmp_path, monkeypatch, tiny_db):
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(shirt_database, "build_database", _no_build)
+    path = default_database_path(BodyParams(), SAMPLING)
+    got: dict[str, object] = {}
+
+    def second_process():
+        try:
+            got["db"] = ensure_database(BodyParams(), SAMPLING)
+        except BaseException as exc:  # reported by the asserts below
+            got["error"] = exc
+
+    with cache_lock(path):  # the first builder is at work
+        waiting = threading.Thread(target=second_process)
+        waiting.start()
+        waiting.join(timeout=1.0)
+        assert waiting.is_alive(), f"did not wait for the lock: {got}"
+        tiny_db.save(path)  # the first builder writes its file and lets go
+    waiting.join(timeout=60)
+    assert "error" not in got, got.get("error")
+    assert np.array_equal(got["db"].hinges, tiny_db.hinges)
+
+
+def test_a_corrupt_cached_database_is_built_again(tmp_path, monkeypatch, tiny_db, caplog):
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(tmp_path))
+    path = default_database_path(BodyParams(), SAMPLING)
+    _truncated_copy(tiny_db, path)
+    monkeypatch.setattr(shirt_database, "build_database", lambda *a, **k: tiny_db)
+    with caplog.at_level(logging.WARNING, logger=shirt_database.__name__):
+        db = ensure_database(BodyParams(), SAMPLING)
+    assert "cannot be read" in caplog.text and str(path) in caplog.text
+    assert np.array_equal(db.hinges, tiny_db.hinges)
+    assert np.array_equal(PoseDatabase.load(path).hinges, tiny_db.hinges)  # the cache is whole again
+    assert [p.name for p in path.parent.iterdir() if "partial" in p.name] == []
+
+
+def test_an_unreadable_database_the_user_named_is_one_clear_error_and_is_left_as_it_was(tmp_path, monkeypatch, tiny_db):
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(shirt_database, "build_database", _no_build)
+    named = tmp_path / "my_db.npz"
+    data = _truncated_copy(tiny_db, named)
+    with pytest.raises(InputFileError) as err:
+        ensure_database(BodyParams(), SAMPLING, path=named)
+    message = str(err.value)
+    assert str(named) in message and "not a readable pose database" in message and "\n" not in message
+    assert named.read_bytes() == data
+    assert [p.name for p in tmp_path.iterdir() if p.name != "cache"] == ["my_db.npz"]  # no lock or temporary file beside it
+
+
+def test_a_corrupt_cached_training_is_trained_again(tmp_path, monkeypatch, tiny_db, caplog):
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(tmp_path))
+    scenario = load_scenario(REPO / "scenarios" / "shirt_office.toml")
+    k, p = tiny_db.n_colours, tiny_db.geometry.n_patches
+    trained = ShirtTraining(ColourModel(np.full((k, 3), 0.5), np.repeat(np.eye(3)[None] * 1e-3, k, axis=0), tuple(tiny_db.geometry.colour_names)),
+                            IKPriors(np.repeat(np.eye(2)[None] * 1e-4, p, axis=0), np.ones(17), np.ones(17), 7), {"frames": 7})
+    calls = []
+    monkeypatch.setattr(shirt_training, "train_shirt_pipeline", lambda *a: calls.append(1) or trained)
+    ensure_training(scenario, tiny_db, 10)
+    (path,) = [q for q in tmp_path.glob("shirt_training_*.npz")]
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with caplog.at_level(logging.WARNING, logger=shirt_training.__name__):
+        again = ensure_training(scenario, tiny_db, 10)
+    assert calls == [1, 1] and "cannot be read" in caplog.text
+    assert again.info == {"frames": 7} and np.array_equal(again.colour_model.means, trained.colour_model.means)
+    assert ensure_training(scenario, tiny_db, 10).priors.n_frames == 7 and calls == [1, 1]  # read from the cache now
