@@ -33,19 +33,20 @@ import cv2
 import numpy as np
 import tomli_w
 
+from mocap.atomic_files import atomic_target, atomic_write_text
 from mocap.errors import CalibrationFileError
 
 
 @contextmanager
-def opencv_yaml_writer(path: Path, tmp: Path) -> Iterator[cv2.FileStorage]:
-    """An OpenCV ``FileStorage`` writing ``tmp``, renamed to ``path`` once the block has
-    written everything (an error leaves ``path`` as it was)."""
-    fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
-    try:
-        yield fs
-    finally:
-        fs.release()
-    os.replace(tmp, path)
+def opencv_yaml_writer(path: Path) -> Iterator[cv2.FileStorage]:
+    """An OpenCV ``FileStorage`` writing YAML to ``path`` once the block has written everything
+    (an error leaves ``path`` as it was; :func:`mocap.atomic_files.atomic_target`)."""
+    with atomic_target(path, ".yml") as tmp:
+        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+        try:
+            yield fs
+        finally:
+            fs.release()
 
 
 def _as_matrix(value, shape: tuple[int, ...], what: str) -> np.ndarray:
@@ -272,7 +273,7 @@ class Calibration:
     def save_opencv_yaml(self, path: str | os.PathLike) -> None:
         """Write OpenCV ``FileStorage`` YAML (atomically: temp file then rename)."""
         path = Path(path)
-        with opencv_yaml_writer(path, path.with_name(path.name + ".tmp.yml")) as fs:
+        with opencv_yaml_writer(path) as fs:
             fs.write("camera_count", len(self.cameras))
             for i, c in enumerate(self.cameras):
                 fs.write(f"camera_{i}_name", c.name)
@@ -348,10 +349,7 @@ class Calibration:
                 "translation": c.t.tolist(),
             }
         doc["metadata"] = {"units": "metres", "convention": "x_cam = R(rotation) @ x_world + translation"}
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(tomli_w.dumps(doc))
-        os.replace(tmp, path)
+        atomic_write_text(path, tomli_w.dumps(doc))
 
     @classmethod
     def load_toml(cls, path: str | os.PathLike) -> "Calibration":

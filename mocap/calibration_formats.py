@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 import tomli_w
 
+from mocap.atomic_files import atomic_write_text
 from mocap.calibration import Calibration, Camera, opencv_yaml_writer
 from mocap.errors import CalibrationFileError
 
@@ -47,12 +48,6 @@ CALIBRATION_FORMATS: tuple[str, ...] = ("opencv", "anipose", "pose2sim", "easymo
 #: The file (or, for EasyMocap, the pair of files) each format writes in an export folder.
 CALIBRATION_FILE_NAMES = {"opencv": "calibration.yml", "anipose": "calibration.toml", "pose2sim": "Calib.toml",
                           "easymocap": "intri.yml"}
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _camera_table(c: Camera, n_dist: int) -> dict:
@@ -82,7 +77,7 @@ def save_calibration(calibration: Calibration, folder: str | os.PathLike, fmt: C
         doc = {f"cam_{i:0{width}d}": _camera_table(c, 5) for i, c in enumerate(calibration)}
         doc["metadata"] = {"adjusted": False, "error": 0.0, "units": "metres",
                            "convention": "x_cam = R(rotation) @ x_world + translation; pixel centres at integers"}
-        _atomic_write_text(path, tomli_w.dumps(doc))
+        atomic_write_text(path, tomli_w.dumps(doc))
         return [path]
     if fmt == "pose2sim":
         doc = {}
@@ -91,7 +86,7 @@ def save_calibration(calibration: Calibration, folder: str | os.PathLike, fmt: C
             table["fisheye"] = False
             doc[c.name] = table
         doc["metadata"] = {"adjusted": False, "error": 0.0}
-        _atomic_write_text(path, tomli_w.dumps(doc))
+        atomic_write_text(path, tomli_w.dumps(doc))
         return [path]
     return _save_easymocap(calibration, folder)
 
@@ -107,7 +102,7 @@ def _save_easymocap(calibration: Calibration, folder: Path) -> list[Path]:
     paths = []
     for kind in ("intri", "extri"):
         path = folder / f"{kind}.yml"
-        with opencv_yaml_writer(path, folder / f"{kind}.tmp.yml") as fs:
+        with opencv_yaml_writer(path) as fs:
             _write_names(fs, calibration.names)
             for c in calibration:
                 if kind == "intri":

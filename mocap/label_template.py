@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.atomic_files import atomic_target
 from mocap.errors import InputFileError
 
 __all__ = ["LabelTemplate", "load_template", "save_template"]
@@ -100,11 +101,9 @@ def load_template(path: str | os.PathLike) -> LabelTemplate:
 def save_template(template: LabelTemplate, path: str | os.PathLike) -> Path:
     """Write ``name,x,y,z`` CSV (header, micrometre precision), atomically."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_target(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["name", "x", "y", "z"])
         for n, p in zip(template.names, template.positions):
             w.writerow([n, *(f"{v:.6f}" for v in p)])
-    os.replace(tmp, path)
     return path

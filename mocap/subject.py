@@ -37,6 +37,7 @@ from typing import Iterable, Sequence
 import numpy as np
 import tomli_w
 
+from mocap.atomic_files import atomic_write_text
 from mocap.errors import InputFileError
 
 __all__ = ["MarkerPlacement", "MjcfBody", "SubjectModel"]
@@ -334,7 +335,7 @@ class SubjectModel:
         target = Path(mjcf_path) if mjcf_path is not None else self.mjcf_path
         if target is None:
             target = path.with_suffix(".xml")
-            _atomic_write_text(target, self.mjcf_text)
+            atomic_write_text(target, self.mjcf_text)
         try:
             ref = os.path.relpath(Path(target).resolve(), path.parent.resolve())
         except ValueError:  # different drives
@@ -343,7 +344,7 @@ class SubjectModel:
             "subject": {"name": self.name, "mjcf": ref},
             "markers": [{"name": m.name, "body": m.body, "offset_m": [float(v) for v in m.offset_m]} for m in self.markers],
         }
-        _atomic_write_text(path, tomli_w.dumps(doc))
+        atomic_write_text(path, tomli_w.dumps(doc))
         return path
 
     def mjcf_file(self) -> tuple[Path, bool]:
@@ -358,12 +359,3 @@ class SubjectModel:
         with os.fdopen(fd, "w") as f:
             f.write(self.mjcf_text)
         return Path(name), True
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -1,15 +1,10 @@
-"""What every exchange format shares: the axis conventions, units, atomic writes, the frame rate.
+"""What every exchange format shares: the axis conventions, units, the frame rate (atomic writes: :mod:`mocap.atomic_files`).
 
 World: Z up, metres (``docs/humanoid_spec.md``). OpenSim's TRC axes are Y up, ``(x, z, -y)``
 of the world; Pose2Sim's are Y up, ``(y, z, x)`` of the world (see :mod:`mocap.exports`).
 """
 
 from __future__ import annotations
-
-import contextlib
-import os
-from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -44,20 +39,6 @@ def world_to_pose2sim(xyz: np.ndarray) -> np.ndarray:
 def pose2sim_to_world(xyz: np.ndarray) -> np.ndarray:
     """Inverse of :func:`world_to_pose2sim`: a Pose2Sim TRC's ``(X, Y, Z)`` -> world ``(Z, X, Y)``."""
     return np.asarray(xyz, dtype=np.float64) @ _POSE2SIM_TO_WORLD.T
-
-
-@contextlib.contextmanager
-def _atomic_target(path: Path, suffix: str = "") -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it onto ``path`` if the block succeeds."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise MocapInputError(f"{path}: the folder {str(path.parent)!r} does not exist; create it or choose another output path")
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{suffix}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _rate(traj_times: np.ndarray, rate_hz: float | None, what: str) -> float:

@@ -10,7 +10,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mocap.errors import MocapInputError
-from mocap.exports._common import _Z_UP_TO_Y_UP, _atomic_target, _rate
+from mocap.atomic_files import atomic_target
+from mocap.exports._common import _Z_UP_TO_Y_UP, _rate
 from mocap.skeleton_fit import KinematicTree, SkeletonFit
 from mocap.subject import SubjectModel
 
@@ -81,7 +82,7 @@ def write_bvh(
     import pandas as pd  # here, not at the top: see mocap/exports/trc.py
 
     body = pd.DataFrame(motion).to_csv(sep=" ", header=False, index=False, float_format="%.6f", lineterminator="\n")
-    with _atomic_target(path) as tmp:
+    with atomic_target(path) as tmp:
         tmp.write_text("\n".join(lines) + "\n" + body)
     return path
 

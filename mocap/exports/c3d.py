@@ -14,7 +14,8 @@ import ezc3d
 import numpy as np
 
 from mocap.errors import InputFileError, MocapInputError
-from mocap.exports._common import _UNIT_TO_M, _atomic_target, _rate
+from mocap.atomic_files import atomic_target
+from mocap.exports._common import _UNIT_TO_M, _rate
 from mocap.exports.capture_files import CaptureTrajectories, _classify_points, _decide_up_axis, _OUTPUT_GROUPS, _rotate_to_z_up
 from mocap.types import Trajectories
 
@@ -64,7 +65,7 @@ def write_c3d(path: str | os.PathLike, traj: Trajectories, *, rate_hz: float | N
     c3d.add_parameter("SIMBENCH", "FIRST_TIME_S", [first_time])
     c3d["data"]["points"] = points
     c3d["data"]["meta_points"] = {"residuals": residual.T[None, :, :]}
-    with _atomic_target(path, ".c3d") as tmp:  # ezc3d appends .c3d to names without it
+    with atomic_target(path, ".c3d") as tmp:  # ezc3d appends .c3d to names without it
         c3d.write(str(tmp))
     return path
 

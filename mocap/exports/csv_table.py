@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.errors import InputFileError
-from mocap.exports._common import _atomic_target
+from mocap.atomic_files import atomic_target
 from mocap.types import Trajectories
 
 
@@ -33,7 +33,7 @@ def write_csv(path: str | os.PathLike, traj: Trajectories) -> Path:
     )
     flags = pd.DataFrame(np.asarray(traj.filled, dtype=np.int8), columns=[f"{label}_filled" for label in traj.labels])
     table = pd.concat([pd.DataFrame({"frame": np.arange(F), "time_s": np.asarray(traj.times, dtype=np.float64)}), coords, flags], axis=1)
-    with _atomic_target(path) as tmp:
+    with atomic_target(path) as tmp:
         table.to_csv(tmp, index=False, na_rep="", float_format="%.10g", lineterminator="\n")
     return path
 

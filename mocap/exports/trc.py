@@ -8,10 +8,10 @@ from typing import Literal
 
 import numpy as np
 
+from mocap.atomic_files import atomic_target
 from mocap.errors import InputFileError, MocapInputError
 from mocap.exports._common import (
     _UNIT_TO_M,
-    _atomic_target,
     _rate,
     pose2sim_to_world,
     world_to_opensim,
@@ -73,7 +73,7 @@ def write_trc(
     table.insert(0, "time", np.asarray(traj.times, dtype=np.float64))
     table.insert(0, "frame", np.arange(1, F + 1))
     body = table.to_csv(sep="\t", header=False, index=False, na_rep="NaN", float_format="%.10g", lineterminator="\n")
-    with _atomic_target(path) as tmp:
+    with atomic_target(path) as tmp:
         tmp.write_text("\n".join(header) + "\n" + body)
     return path
 

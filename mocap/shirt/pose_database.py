@@ -31,7 +31,6 @@ weighted quaternion mean of the largest cluster (``scipy.spatial.transform.Rotat
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 import zlib
 from dataclasses import dataclass, field
@@ -47,6 +46,7 @@ import numba
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from mocap.atomic_files import atomic_target
 from mocap.errors import InputFileError
 from mocap.shirt.geometry import ShirtGeometry
 from mocap.shirt.kinematics import UPPER_HINGES
@@ -350,19 +350,13 @@ class PoseDatabase:
         """Write one ``.npz`` (compressed); written to a temporary name and renamed."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        # the temporary name is this process's own: two processes that saved at once into one shared name
-        # interleaved their writes, and the renamed file was corrupt for every later run
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")
         meta = dict(self.meta, format_version=FORMAT_VERSION, n_poses=len(self))
-        try:
+        with atomic_target(path, ".npz") as tmp:
             np.savez_compressed(tmp, tiny=self.tiny, hinges=self.hinges, view_quat=self.view_quat,
                                 box_centre_m=self.box_centre_m, box_side_m=self.box_side_m, mjcf_text=np.array(self.mjcf_text),
                                 meta=np.array(json.dumps(meta)), pca_mean=self.pca_mean, pca_basis=self.pca_basis,
                                 index_bytes=np.asarray(self.index_bytes, np.uint8), hinge_names=np.array(UPPER_HINGES),
                                 **self.geometry.to_arrays())
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
         return path
 
     @classmethod

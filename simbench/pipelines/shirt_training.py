@@ -12,15 +12,16 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import time
 import zipfile
 import zlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+from mocap.atomic_files import atomic_target
 from mocap.shirt.colour_model import ColourModel, train_colour_model
 from mocap.shirt.ik import IKPriors, train_priors
 from mocap.shirt.pipeline import ShirtPipelineParams, ShirtTracker
@@ -182,14 +183,10 @@ def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> Shir
         log.info("shirt training %s missing: training on %d frames of other takes", path.name, n_frames)
         tr = train_shirt_pipeline(scenario, db, n_frames)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.partial.npz")  # this process's own (see PoseDatabase.save)
-        try:
+        with atomic_target(path, ".npz") as tmp:
             np.savez(tmp, means=tr.colour_model.means, covariances=tr.colour_model.covariances, names=np.array(tr.colour_model.names),
                      centroid_cov=tr.priors.centroid_cov, blend_std=tr.priors.blend_std, motion_std=tr.priors.motion_std,
                      n_frames=np.array(tr.priors.n_frames), info=np.array(json.dumps(tr.info)))
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
     return tr
 
 

@@ -46,7 +46,8 @@ from rich.table import Table
 
 from eval.seed_stats import holm, shift_test
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord, atomic_write_bytes
+from mocap.atomic_files import atomic_write_bytes
+from simbench.sweeps.results_db import STATUS_FAILED, STATUS_OK, RunRecord
 from simbench.scenario import FrozenModel, Int, Real, load_scenario, read_toml_file, validation_error_to_scenario_error
 from simbench.sweeps.sweep import RunSpec, RunTask, flatten_dotted, iter_records, package_versions, run_id_for
 
@@ -340,7 +341,8 @@ def write_baseline(path: str | Path, suite: str, records: dict[str, RunRecord | 
         "scenarios": scenarios,
     }
     path = Path(path)
-    atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode(), fsync=True)
     return path
 
 
@@ -587,5 +589,5 @@ def write_junit(checks: list[MetricCheck], path: str | Path, suite: str, wall_s:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ET.indent(root)
-    atomic_write_bytes(path, ET.tostring(root, encoding="utf-8", xml_declaration=True))
+    atomic_write_bytes(path, ET.tostring(root, encoding="utf-8", xml_declaration=True), fsync=True)
     return path

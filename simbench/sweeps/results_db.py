@@ -25,7 +25,6 @@ import json
 import math
 import os
 import socket
-import tempfile
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -37,6 +36,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mocap.atomic_files import atomic_write_bytes
 from simbench.errors import SimbenchInputError
 from simbench.output_dir import pid_alive, remove_stale_partials
 
@@ -138,21 +138,6 @@ def _json_float(v) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write to a temporary sibling, fsync, rename over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 class ResultStore:
     """The per-run files next to the database (``results/``, ``frames/``, ``runs/``)."""
 
@@ -176,10 +161,12 @@ class ResultStore:
         if record.per_frame is not None and record.per_frame.num_rows:
             sink = pa.BufferOutputStream()
             pq.write_table(record.per_frame, sink)
-            atomic_write_bytes(self.frames_path(record.run_id), sink.getvalue().to_pybytes())
+            self.frames_dir.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(self.frames_path(record.run_id), sink.getvalue().to_pybytes(), fsync=True)
             record.frames_file = str(self.frames_path(record.run_id).relative_to(self.root))
+        self.results_dir.mkdir(parents=True, exist_ok=True)
         atomic_write_bytes(self.result_path(record.run_id),
-                            json.dumps(record.to_json_dict(), indent=1, sort_keys=True).encode())
+                           json.dumps(record.to_json_dict(), indent=1, sort_keys=True).encode(), fsync=True)
 
     def read(self, run_id: str) -> RunRecord | None:
         p = self.result_path(run_id)

@@ -1,0 +1,63 @@
+"""Files written whole or not at all: every file the capture product and the bench write goes through here.
+
+A file is written under a temporary name of its own beside the target (hidden, ``.NAME.XXXXXXXX.tmp``,
+made by :func:`tempfile.mkstemp`, so no other process and no file of the user's has it) and renamed onto the
+target only when the writing succeeded; on any error the temporary file is removed and the target is as it
+was. Why one helper: the writers each had their own temporary name, and some shared a fixed one
+(``NAME.tmp``), which two processes writing the same file at once interleaved (the colour shirt's cached pose
+database came out corrupt that way, session 27) and which would overwrite a user's file of that name.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from mocap.errors import MocapInputError
+
+__all__ = ["atomic_target", "atomic_write_text", "atomic_write_bytes"]
+
+
+@contextmanager
+def atomic_target(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
+    """Yield a new, empty temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
+
+    Parameters
+    ----------
+    path : path-like
+        The file to write. Its folder must exist.
+    suffix : str
+        Ending of the temporary name, for writers that choose their format by it or append it
+        (``".yml"`` for OpenCV's ``FileStorage``, ``".npz"`` for ``numpy.savez``, ``".c3d"`` for ezc3d).
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise MocapInputError(f"{path}: the folder {str(path.parent)!r} does not exist; create it or choose another output path")
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + suffix, dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all."""
+    with atomic_target(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, fsync: bool = False) -> None:
+    """Write ``data`` to ``path`` whole or not at all; ``fsync``: flushed to the disk before the rename
+    (a results store that must survive a power cut)."""
+    with atomic_target(path) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            if fsync:
+                fh.flush()
+                os.fsync(fh.fileno())
