@@ -57,6 +57,7 @@ __all__ = [
     "build_database",
     "cache_dir",
     "cache_lock",
+    "file_stamp",
     "default_database_path",
     "ensure_database",
     "ProgressFactory",
@@ -232,14 +233,12 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
     """
     named = path is not None
     path = Path(path) if path is not None else default_database_path(params, sampling)
+    seen = file_stamp(path)
+    if seen is not None and (db := _load_cached(path, named)) is not None:  # written whole or not at all: no lock to read
+        return db
     with cache_lock(path):
-        if path.is_file():
-            try:
-                return PoseDatabase.load(path)
-            except InputFileError as exc:
-                if named:
-                    raise
-                log.warning("the cached shirt pose database %s cannot be read (%s): building it again", path, exc.problem)
+        if file_stamp(path) not in (None, seen) and (db := _load_cached(path, named)) is not None:
+            return db  # another process built it meanwhile
         where = (f"shirt_pipeline.database = {str(path)!r} does not exist" if named
                  else f"no cached shirt pose database for this subject and database_size ({path})")
         log.warning("%s: building it now, %d poses (how long it takes is said 10 s in; `simbench shirt build-db` "
@@ -254,6 +253,27 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
         db.save(path)
     log.info("wrote %s (%d poses)", path, len(db))
     return db
+
+
+def file_stamp(path: Path) -> tuple[int, int] | None:
+    """``(mtime_ns, size)`` of the file at ``path``, None when there is none: whether another process wrote it."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return None
+    return st.st_mtime_ns, st.st_size
+
+
+def _load_cached(path: Path, named: bool) -> PoseDatabase | None:
+    """The database at ``path``; None, said once, when a cached one cannot be read (an unreadable file the
+    user named raises :class:`~mocap.errors.InputFileError`)."""
+    try:
+        return PoseDatabase.load(path)
+    except InputFileError as exc:
+        if named:
+            raise
+        log.warning("the cached shirt pose database %s cannot be read (%s): building it again", path, exc.problem)
+        return None
 
 
 @contextmanager

@@ -29,7 +29,7 @@ from mocap.shirt.pose_database import PoseDatabase
 from mocap.shirt.kinematics import UPPER_NV
 from mocap.shirt.shirt_model import ShirtModel
 from simbench.errors import SimbenchInputError
-from simbench.pipelines.shirt_database import cache_dir, cache_lock
+from simbench.pipelines.shirt_database import cache_dir, cache_lock, file_stamp
 from simbench.pipelines.shirt_inputs import colour_labels, session_inputs
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
@@ -174,12 +174,12 @@ def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> Shir
     """The cached training for this scenario's rig (trained and cached when missing or unreadable; processes that
     want it at once train once, :func:`~simbench.pipelines.shirt_database.cache_lock`)."""
     path = cache_dir() / f"shirt_training_{_training_key(scenario, db, n_frames)}.npz"
+    seen = file_stamp(path)
+    if seen is not None and (tr := _read_training(path)) is not None:  # written whole or not at all: no lock to read
+        return tr
     with cache_lock(path):
-        if path.is_file():
-            try:
-                return _read_training(path)
-            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
-                log.warning("the cached shirt training %s cannot be read (%s: %s): training again", path, type(exc).__name__, exc)
+        if file_stamp(path) not in (None, seen) and (tr := _read_training(path)) is not None:
+            return tr  # another process trained meanwhile
         log.info("shirt training %s missing: training on %d frames of other takes", path.name, n_frames)
         tr = train_shirt_pipeline(scenario, db, n_frames)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -190,8 +190,13 @@ def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> Shir
     return tr
 
 
-def _read_training(path: Path) -> ShirtTraining:
-    with np.load(path, allow_pickle=False) as z:
-        cm = ColourModel(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
-        pr = IKPriors(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
-        return ShirtTraining(cm, pr, json.loads(str(z["info"])))
+def _read_training(path: Path) -> ShirtTraining | None:
+    """The cached training at ``path``; None, said once, when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            cm = ColourModel(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
+            pr = IKPriors(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
+            return ShirtTraining(cm, pr, json.loads(str(z["info"])))
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        log.warning("the cached shirt training %s cannot be read (%s: %s): training again", path, type(exc).__name__, exc)
+        return None
