@@ -212,6 +212,16 @@ def test_check_shows_unrunnable_scenarios_as_error_rows_and_exits_3(short_tmp):
     assert "2 scenarios could not run" in r.stdout
     errors = {e.get("message") for e in ET.parse(tmp_path / "j.xml").getroot().iter("error")}
     assert len(errors) == 2 and any("[[lighting.lights]]" in e for e in errors)
+    # a rerun replaces its own JUnit file; a file of the user's at --junit is refused before anything runs
+    again = CliRunner().invoke(app, ["check", "--suite", "t", "--suites", str(tmp_path / "suites.toml"),
+                                     "--baseline", str(tmp_path / "base.json"), "--junit", str(tmp_path / "j.xml")])
+    assert again.exit_code == 3, again.output
+    (tmp_path / "mine.xml").write_text("<notes/>")
+    refused = CliRunner().invoke(app, ["check", "--suite", "t", "--suites", str(tmp_path / "suites.toml"),
+                                       "--baseline", str(tmp_path / "base.json"), "--junit", str(tmp_path / "mine.xml")])
+    assert refused.exit_code == 2 and (tmp_path / "mine.xml").read_text() == "<notes/>"
+    assert "is not a JUnit file of simbench check written by simbench" in " ".join(refused.output.split())
+    assert "ERROR" not in refused.output
 
 
 def test_a_bad_set_on_the_command_line_is_still_exit_2(tmp_path):

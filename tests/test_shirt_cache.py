@@ -121,3 +121,27 @@ def test_a_corrupt_cached_training_is_trained_again(tmp_path, monkeypatch, tiny_
     assert calls == [1, 1] and caplog.text.count("cannot be read") == 1
     assert again.info == {"frames": 7} and np.array_equal(again.colour_model.means, trained.colour_model.means)
     assert ensure_training(scenario, tiny_db, 10).priors.n_frames == 7 and calls == [1, 1]  # read from the cache now
+
+
+def test_build_db_out_replaces_a_pose_database_but_never_a_file_of_the_users(tmp_path, tiny_db, monkeypatch):
+    from typer.testing import CliRunner
+
+    from simbench.cli.app import app
+
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    mine = tmp_path / "poses.npz"
+    np.savez(mine, x=np.arange(3))  # an .npz of the user's, not a database
+    data = mine.read_bytes()
+    monkeypatch.setattr(shirt_database, "build_database", _no_build)
+    res = CliRunner().invoke(app, ["shirt", "build-db", "--out", str(mine), "--poses", "60", "--seed", "3"])
+    assert res.exit_code == 2 and mine.read_bytes() == data, res.output
+    assert f"{mine}: exists and is not a pose database written by simbench" in " ".join(res.output.split())
+    ours = tmp_path / "db.npz"
+    _truncated_copy(tiny_db, ours)  # a database cut short is not recognised either: it is not replaced
+    res = CliRunner().invoke(app, ["shirt", "build-db", "--out", str(ours), "--poses", "60", "--seed", "3"])
+    assert res.exit_code == 2
+    tiny_db.save(ours)
+    monkeypatch.setattr(shirt_database, "build_database", lambda *a, **k: tiny_db)
+    res = CliRunner().invoke(app, ["shirt", "build-db", "--out", str(ours), "--poses", "60", "--seed", "3"])
+    assert res.exit_code == 0, res.output
+    assert np.array_equal(PoseDatabase.load(ours).hinges, tiny_db.hinges)

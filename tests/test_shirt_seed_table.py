@@ -90,3 +90,17 @@ def test_a_database_without_shirt_runs_is_refused(tmp_path):
     db.ingest([RunRecord("x", "s", 0, "quickstart", "h", {"seed": 1}, {}, STATUS_OK, metrics={"marker.rmse_mm": 1.0})])
     with pytest.raises(SimbenchInputError, match="no colour-shirt seed runs"):
         read_seed_rows([tmp_path / "m.duckdb"])
+
+
+def test_out_replaces_a_seed_table_but_never_a_file_of_the_users(dbs, tmp_path):
+    out = tmp_path / "table.md"
+    out.write_text("| seed | an older table |\n")
+    res = CliRunner().invoke(app, ["shirt", "seed-table", str(dbs[0]), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "| median |" in out.read_text()
+    notes = tmp_path / "notes.md"
+    notes.write_text("my notes\n")
+    res = CliRunner().invoke(app, ["shirt", "seed-table", str(dbs[0]), "--out", str(notes)])
+    assert res.exit_code == 2 and notes.read_text() == "my notes\n"
+    assert f"{notes}: exists and is not a seed table written by simbench; it will not be replaced" in res.output
+    assert len(res.output.strip().splitlines()) == 1 and "| seed |" not in res.output  # refused before anything ran

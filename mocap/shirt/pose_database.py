@@ -359,6 +359,15 @@ class PoseDatabase:
                                 **self.geometry.to_arrays())
         return path
 
+    @staticmethod
+    def is_database(path: str | Path) -> bool:
+        """Whether ``path`` is a pose database file (its ``meta`` names a ``format_version``); reads only that."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return "meta" in z.files and "format_version" in json.loads(str(z["meta"]))
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error):
+            return False
+
     @classmethod
     def load(cls, path: str | Path) -> "PoseDatabase":
         path = Path(path)

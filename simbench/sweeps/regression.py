@@ -565,6 +565,12 @@ def print_checks(checks: list[MetricCheck], console: Console, suite: str, baseli
                   highlight=False)
 
 
+def is_check_junit(path: Path) -> bool:
+    """Whether the file at ``path`` is JUnit XML as :func:`write_junit` writes it (a rerun replaces it)."""
+    with open(path, "rb") as fh:
+        return b'<testsuites name="simbench check"' in fh.read(400)
+
+
 def write_junit(checks: list[MetricCheck], path: str | Path, suite: str, wall_s: float = 0.0) -> Path:
     """JUnit XML: one test case per scenario and metric; regressions are failures, crashed runs errors."""
     n_fail = sum(c.status in (REGRESSED, MISSING) for c in checks)

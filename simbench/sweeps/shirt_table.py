@@ -112,6 +112,12 @@ def _cell(r: SeedRow | None) -> str:
     return f"{bold}{r.full_cm:.2f}{bold} / {b}"
 
 
+def is_seed_table(path: Path) -> bool:
+    """Whether the file at ``path`` is a seed table as :func:`seed_table_markdown` writes it."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        return fh.read(9) == "| seed | "
+
+
 def seed_table_markdown(rows: list[SeedRow], summaries: list[ScenarioSummary] | None = None) -> str:
     """Seeds down, scenarios across, ``full / baseline`` joint RMSE (cm) per cell (bold: full above 4 cm),
     then the summary rows."""
