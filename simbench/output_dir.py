@@ -47,7 +47,7 @@ MARKER = ".simbench-output.json"
 _TOOL = "simbench"
 PARTIAL_INFIX = ".partial-"
 
-OutputKind = Literal["run", "render"]
+OutputKind = Literal["run", "render", "report"]
 
 
 class OutputPathError(SimbenchInputError):

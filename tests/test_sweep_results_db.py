@@ -139,3 +139,22 @@ def test_report_errors_name_the_fix(tmp_path, db):
         write_sweep_report(tmp_path / "nope.duckdb", tmp_path / "r")
     with pytest.raises(SimbenchInputError, match="holds: synthetic"):
         write_sweep_report(db.path, tmp_path / "r", sweep="other")
+
+
+def test_report_command_replaces_its_own_report_and_never_a_folder_of_the_users(db, tmp_path):
+    from typer.testing import CliRunner
+
+    from simbench.cli.app import app
+
+    rep = tmp_path / "rep"
+    for _ in range(2):  # written, then replaced by the rerun
+        res = CliRunner().invoke(app, ["report", str(db.path), "--out", str(rep), "--worst", "2"])
+        assert res.exit_code == 0, res.output
+        assert (rep / "report.md").is_file() and (rep / "plots" / "trackers.png").is_file()
+    assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
+    mine = tmp_path / "documents"
+    mine.mkdir()
+    (mine / "report.md").write_text("my own report\n")
+    res = CliRunner().invoke(app, ["report", str(db.path), "--out", str(mine)])
+    assert res.exit_code == 2 and "exists and was not written by simbench" in " ".join(res.output.split())
+    assert [p.name for p in mine.iterdir()] == ["report.md"] and (mine / "report.md").read_text() == "my own report\n"

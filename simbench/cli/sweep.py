@@ -99,9 +99,12 @@ def report(db: Path = typer.Argument(..., help="results database written by `sim
            sweep_name: Optional[str] = typer.Option(None, "--sweep", help="only this sweep (default: every sweep in the database)"),
            worst: int = typer.Option(8, "--worst", min=1, help="how many worst runs to list")) -> None:
     """HTML and Markdown report of a sweep: each metric against each factor, heatmaps, trackers, worst runs."""
+    from simbench.output_dir import AtomicOutputDir
     from simbench.sweeps.report import write_sweep_report
 
-    md = write_sweep_report(db, out, sweep=sweep_name, n_worst=worst)
+    # a folder of the user's is refused before anything is written, and a report cut short leaves none
+    with AtomicOutputDir(out, scenario=f"report of {db}", kind="report") as tmp:
+        md = out / write_sweep_report(db, tmp, sweep=sweep_name, n_worst=worst).name
     console.print(f"wrote {md} and {md.with_suffix('.html')}", highlight=False, markup=False)
 
 
