@@ -41,6 +41,7 @@ from mocap.calib.observations import BoardObservations, WandObservations
 from mocap.calib.views import IMAGE_SUFFIXES, VIDEO_SUFFIXES, ViewSource, detect_board_views, iter_views
 from mocap.calib.wand import WandSpec, label_collinear_wand, triangulate_wand, wand_initial_rig
 from mocap.calib.world_frame import camera_transform, floor_transform, transform_cameras, transform_points, transform_poses
+from mocap.atomic_files import atomic_write_text
 from mocap.calibration import Calibration, Camera
 from mocap.errors import InputFileError
 
@@ -432,17 +433,35 @@ def _homogeneous(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_calibration(result: CalibrationResult, out: str | os.PathLike) -> list[Path]:
-    """Write ``<out>.toml`` (anipose), ``<out>.yml`` (OpenCV) and ``<out>.report.json``."""
+def calibration_paths(out: str | os.PathLike) -> tuple[Path, Path, Path]:
+    """The ``<out>.toml`` (anipose), ``<out>.yml`` (OpenCV) and ``<out>.report.json`` of output stem ``out``."""
     out = Path(out)
     stem = out.with_suffix("") if out.suffix.lower() in (".toml", ".yml", ".yaml", ".json") else out
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    toml_path, yml_path = stem.with_suffix(".toml"), stem.with_suffix(".yml")
-    report_path = stem.with_name(stem.name + ".report.json")
+    return stem.with_suffix(".toml"), stem.with_suffix(".yml"), stem.with_name(stem.name + ".report.json")
+
+
+# what each file of write_calibration holds (a rerun replaces its own files, never others)
+_OWN_MARKS = (b'convention = "x_cam = R(rotation) @ x_world + translation"', b"camera_count:", b'"reprojection_rms_px"')
+
+
+def check_calibration_outputs(out: str | os.PathLike) -> None:
+    """Before calibrating: each file :func:`write_calibration` would write at ``out`` is absent or one it wrote."""
+    for path, mark in zip(calibration_paths(out), _OWN_MARKS):
+        if not path.exists() and not path.is_symlink():
+            continue
+        if path.is_symlink() or not path.is_file() or mark not in path.read_bytes():
+            raise CalibrationError(f"{path}: exists and was not written by mocap calibrate; it will not be replaced; "
+                                   "choose another --out, or move or remove it yourself")
+
+
+def write_calibration(result: CalibrationResult, out: str | os.PathLike) -> list[Path]:
+    """Write ``<out>.toml`` (anipose), ``<out>.yml`` (OpenCV) and ``<out>.report.json``."""
+    toml_path, yml_path, report_path = calibration_paths(out)
+    toml_path.parent.mkdir(parents=True, exist_ok=True)
     result.calibration.save_toml(toml_path)
     result.calibration.save_opencv_yaml(yml_path)
     result.written = [toml_path, yml_path, report_path]
-    report_path.write_text(json.dumps(result.to_dict(), indent=2, default=float))
+    atomic_write_text(report_path, json.dumps(result.to_dict(), indent=2, default=float))
     return result.written
 
 
@@ -526,6 +545,7 @@ def run_calibrate_cli(cameras: Sequence[str], out: str, *, board: str = "checker
     floor_view : str, optional
         Index or file name of the view with the board on the floor (world frame).
     """
+    check_calibration_outputs(out)
     inputs: dict[str, str] = {}
     for item in cameras:
         if "=" not in item:

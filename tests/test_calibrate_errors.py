@@ -252,3 +252,29 @@ def test_symmetric_checkerboard_is_refused_for_several_cameras():
     obs = BoardObservations(spec, ["a", "b"], [(640, 480)] * 2, np.full((2, 3, spec.n_corners, 2), np.nan))
     with pytest.raises(CalibrationError, match="9x7 squares and looks the same turned by 180 deg"):
         calibrate_from_observations(obs)
+
+
+@pytest.mark.parametrize("taken", ["rig.toml", "rig.yml", "rig.report.json"])
+def test_calibrate_out_never_replaces_a_file_it_did_not_write(tmp_path, taken):
+    from typer.testing import CliRunner
+
+    from mocap.cli.app import app
+
+    (tmp_path / taken).write_text("the user's own file\n")
+    res = CliRunner().invoke(app, ["calibrate", f"cam0={tmp_path / 'nowhere'}", "--out", str(tmp_path / "rig")])
+    assert res.exit_code == 2, res.output
+    line = " ".join(res.output.split())
+    assert f"{tmp_path / taken}: exists and was not written by mocap calibrate; it will not be replaced" in line
+    assert [p.name for p in tmp_path.iterdir()] == [taken] and (tmp_path / taken).read_text() == "the user's own file\n"
+
+
+def test_calibrate_out_replaces_its_own_files(tmp_path):
+    from mocap.calibrate import calibration_paths, check_calibration_outputs
+
+    cams = tuple(Camera(f"cam{i}", (640, 480), [[600, 0, 320], [0, 600, 240], [0, 0, 1]], np.zeros(5), np.eye(3), [i, 0.0, 3.0])
+                 for i in range(2))
+    toml_path, yml_path, report_path = calibration_paths(tmp_path / "rig.toml")
+    Calibration(cams).save_toml(toml_path)
+    Calibration(cams).save_opencv_yaml(yml_path)
+    report_path.write_text('{"cameras": ["cam0", "cam1"], "reprojection_rms_px": {}}')
+    check_calibration_outputs(tmp_path / "rig")  # a rerun into the same stem: allowed
