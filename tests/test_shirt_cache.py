@@ -145,3 +145,11 @@ def test_build_db_out_replaces_a_pose_database_but_never_a_file_of_the_users(tmp
     res = CliRunner().invoke(app, ["shirt", "build-db", "--out", str(ours), "--poses", "60", "--seed", "3"])
     assert res.exit_code == 0, res.output
     assert np.array_equal(PoseDatabase.load(ours).hinges, tiny_db.hinges)
+
+
+def test_a_long_build_says_once_how_long_it_will_take_where_warnings_show(caplog):
+    estimate = shirt_database._BuildEstimate(100, after_s=0.0)
+    with caplog.at_level(logging.WARNING, logger=shirt_database.__name__):
+        estimate.advance(10)
+        estimate.advance(10)
+    assert caplog.text.count("min to go") == 1 and "10 of 100 poses" in caplog.text

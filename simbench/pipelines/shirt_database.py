@@ -218,7 +218,9 @@ class _BuildEstimate:
         if not self.said and elapsed >= self.after_s and self.done < self.total:
             self.said = True
             rate = self.done / elapsed
-            log.info("shirt pose database: %d of %d poses in %.0f s (%.0f poses/s): about %.0f min to go",
+            # a warning, as the build's first line is: a sweep's or --seeds' workers show warnings only, and the
+            # first line promises this one
+            log.warning("shirt pose database: %d of %d poses in %.0f s (%.0f poses/s): about %.0f min to go",
                      self.done, self.total, elapsed, rate, (self.total - self.done) / rate / 60.0)
 
 
