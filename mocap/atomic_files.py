@@ -1,7 +1,7 @@
 """Files written whole or not at all: every file the capture product and the bench write goes through here.
 
 A file is written under a temporary name of its own beside the target (hidden, ``.NAME.XXXXXXXX.tmp``,
-made by :func:`tempfile.mkstemp`, so no other process and no file of the user's has it) and renamed onto the
+made with ``O_EXCL``, so no other process and no file of the user's has it) and renamed onto the
 target only when the writing succeeded; on any error the temporary file is removed and the target is as it
 was. Why one helper: the writers each had their own temporary name, and some shared a fixed one
 (``NAME.tmp``), which two processes writing the same file at once interleaved (the colour shirt's cached pose
@@ -11,7 +11,7 @@ database came out corrupt that way, session 27) and which would overwrite a user
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -36,14 +36,25 @@ def atomic_target(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     path = Path(path)
     if not path.parent.is_dir():
         raise MocapInputError(f"{path}: the folder {str(path.parent)!r} does not exist; create it or choose another output path")
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
+    tmp = _new_temporary(path, suffix)
     try:
         yield tmp
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _new_temporary(path: Path, suffix: str) -> Path:
+    """Create an empty ``.NAME.XXXXXXXX.tmp<suffix>`` beside ``path`` that no other call has, with the mode a plain
+    write gives (``0o666`` less the umask; ``tempfile.mkstemp``'s ``0o600`` would make every output private)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{suffix}")
+        try:
+            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(f"{path}: no free temporary name beside it")
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:

@@ -96,3 +96,10 @@ def test_every_writer_leaves_a_users_files_of_temporary_looking_names_alone(tmp_
 def test_atomic_write_bytes_with_fsync_writes_the_bytes(tmp_path):
     atomic_write_bytes(tmp_path / "r.json", b'{"a": 1}', fsync=True)
     assert (tmp_path / "r.json").read_bytes() == b'{"a": 1}'
+
+
+def test_a_written_file_has_the_mode_a_plain_write_gives(tmp_path):
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    atomic_write_text(tmp_path / "atomic.txt", "x")
+    assert (tmp_path / "atomic.txt").stat().st_mode == plain.stat().st_mode
