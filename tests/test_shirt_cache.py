@@ -153,3 +153,15 @@ def test_a_long_build_says_once_how_long_it_will_take_where_warnings_show(caplog
         estimate.advance(10)
         estimate.advance(10)
     assert caplog.text.count("min to go") == 1 and "10 of 100 poses" in caplog.text
+
+
+def test_a_cache_folder_that_cannot_be_written_still_lets_a_named_database_be_built(tmp_path, monkeypatch, tiny_db, caplog):
+    blocked = tmp_path / "cache"
+    blocked.write_text("a file where the cache folder would be")  # so cache/locks cannot be made
+    monkeypatch.setenv("SIMBENCH_CACHE_DIR", str(blocked))
+    monkeypatch.setattr(shirt_database, "build_database", lambda *a, **k: tiny_db)
+    named = tmp_path / "db.npz"
+    with caplog.at_level(logging.WARNING, logger=shirt_database.__name__):
+        db = ensure_database(BodyParams(), SAMPLING, path=named)
+    assert np.array_equal(db.hinges, tiny_db.hinges) and PoseDatabase.is_database(named)
+    assert "building without a lock" in caplog.text

@@ -291,7 +291,12 @@ def cache_lock(path: str | Path) -> Iterator[None]:
     """
     key = hashlib.sha256(str(Path(path).resolve()).encode()).hexdigest()[:16]
     folder = cache_dir() / "locks"
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a cache folder this process cannot write: build without the lock, as before it
+        log.warning("cannot make %s (%s): building without a lock against other processes", folder, exc.strerror)
+        yield
+        return
     lock = FileLock(folder / f"{key}.lock")
     try:
         lock.acquire(blocking=False)
