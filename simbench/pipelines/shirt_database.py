@@ -293,8 +293,11 @@ def cache_lock(path: str | Path) -> Iterator[None]:
     folder = cache_dir() / "locks"
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        writable = True
     except OSError as exc:  # a cache folder this process cannot write: build without the lock, as before it
         log.warning("cannot make %s (%s): building without a lock against other processes", folder, exc.strerror)
+        writable = False
+    if not writable:
         yield
         return
     lock = FileLock(folder / f"{key}.lock")
