@@ -165,3 +165,92 @@ def test_a_cache_folder_that_cannot_be_written_still_lets_a_named_database_be_bu
         db = ensure_database(BodyParams(), SAMPLING, path=named)
     assert np.array_equal(db.hinges, tiny_db.hinges) and PoseDatabase.is_database(named)
     assert "building without a lock" in caplog.text
+
+
+def test_prepare_builds_each_distinct_shirt_scenario_once_with_the_progress_bar(monkeypatch):
+    from simbench.pipelines import shirt as shirt_pipeline
+
+    calls = []
+    monkeypatch.setattr(shirt_pipeline, "build_stage", lambda sc: sc)
+    monkeypatch.setattr(shirt_pipeline, "_database_and_training", lambda stage, factory: calls.append((stage.name, factory)))
+    office = load_scenario(REPO / "scenarios" / "shirt_office.toml")
+    outdoor = load_scenario(REPO / "scenarios" / "shirt_outdoor.toml")
+    markers = load_scenario(REPO / "scenarios" / "quickstart.toml")
+    seeds = [office.model_copy(update={"seed": s}) for s in (1, 2, 3)]
+    factory = object()
+    assert shirt_pipeline.prepare_shirt_caches([*seeds, markers, outdoor], factory) == 2
+    assert calls == [("shirt_office", factory), ("shirt_outdoor", factory)]
+
+
+class _Prepared(Exception):
+    pass
+
+
+class _RanWithoutPreparing(Exception):
+    pass
+
+
+def _no_runs(monkeypatch):
+    """Every pool of runs raises at once: a command that skipped the preparation fails fast instead of running."""
+    import simbench.sweeps.regression
+    import simbench.sweeps.seeds
+    import simbench.sweeps.sweep
+
+    def refuse(*args, **kwargs):
+        raise _RanWithoutPreparing
+
+    for module in (simbench.sweeps.sweep, simbench.sweeps.seeds, simbench.sweeps.regression):
+        monkeypatch.setattr(module, "iter_records", refuse)
+
+
+@pytest.mark.parametrize("args", [
+    ["run", "scenarios/shirt_office.toml", "--seeds", "2", "--out", "{tmp}/seeds"],
+    ["sweep", "scenarios/sweeps/shirt_seeds_office.toml", "--db", "{tmp}/db/results.duckdb", "--no-outputs"],
+    ["compare", "scenarios/shirt_office.toml", "--b", "shirt_pipeline.settings.pose_prior=false", "--seeds", "2"],
+])
+def test_commands_with_local_workers_prepare_the_shirt_caches_first_with_a_progress_bar(tmp_path, monkeypatch, args):
+    from typer.testing import CliRunner
+
+    from simbench.cli.app import app
+    from simbench.cli.common import progress_bar
+    from simbench.pipelines import shirt as shirt_pipeline
+
+    seen = []
+
+    def prepare(scenarios, factory):
+        seen.append(([sc.name for sc in scenarios], factory))
+        raise _Prepared  # nothing after it runs
+
+    monkeypatch.setattr(shirt_pipeline, "prepare_shirt_caches", prepare)
+    _no_runs(monkeypatch)
+    monkeypatch.chdir(REPO)
+    res = CliRunner().invoke(app, [a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert isinstance(res.exception, _Prepared), res.output
+    (names, factory), = seen
+    assert set(names) == {"shirt_office"} and factory is progress_bar
+
+
+def test_check_prepares_the_shirt_caches_of_its_suite_first(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from simbench.cli.app import app
+    from simbench.cli.common import progress_bar
+    from simbench.pipelines import shirt as shirt_pipeline
+
+    (tmp_path / "suites.toml").write_text(
+        '[tolerances]\n"*" = { worse = "either", rel = 0.05 }\n[suites.t]\n'
+        f'[[suites.t.scenarios]]\nname = "office"\nfile = "{REPO / "scenarios" / "shirt_office.toml"}"\n'
+        f'[[suites.t.scenarios]]\nname = "quick"\nfile = "{REPO / "scenarios" / "quickstart.toml"}"\n')
+    (tmp_path / "base.json").write_text('{"suite": "t", "scenarios": {}}')
+    seen = []
+
+    def prepare(scenarios, factory):
+        seen.append(([sc.name for sc in scenarios], factory))
+        raise _Prepared
+
+    monkeypatch.setattr(shirt_pipeline, "prepare_shirt_caches", prepare)
+    _no_runs(monkeypatch)
+    res = CliRunner().invoke(app, ["check", "--suite", "t", "--suites", str(tmp_path / "suites.toml"),
+                                   "--baseline", str(tmp_path / "base.json"), "--out", str(tmp_path / "out")])
+    assert isinstance(res.exception, _Prepared), res.output
+    assert seen == [(["shirt_office", "quickstart"], progress_bar)]

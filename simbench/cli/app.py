@@ -114,8 +114,11 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
 def _run_seeds(sc, out: Path, n: int, start, overrides, workers, scheduler) -> None:
     """``simbench run --seeds N``: the replicate runs, then each metric's mean, CI and spread."""
     from simbench.cli.sweep import counting_progress
+    from simbench.pipelines.shirt import prepare_shirt_caches
     from simbench.sweeps.seeds import run_seeds
 
+    if scheduler is None:  # local workers: a missing shirt database is built here, with its progress bar
+        prepare_shirt_caches([sc], progress_bar)
     prog, on_record = counting_progress(f"run {sc.name}, {n} seeds", n)
     with prog:
         result = run_seeds(sc, out, n, start, overrides, workers, scheduler, on_record)

@@ -20,8 +20,10 @@ on the same frames and scores both against the ground truth with :mod:`eval.shir
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
 import cv2
 import numpy as np
@@ -39,10 +41,12 @@ from simbench.pipelines.shirt_inputs import colour_labels, first_frame_inputs, r
 from simbench.pipelines.shirt_training import ShirtTraining, ensure_training
 from simbench.render.video import Mp4Writer
 from simbench.scenario.model import Scenario
+from simbench.stage.build import build_stage
 from simbench.stage.ground_truth import GroundTruth
 from simbench.stage.stage import Stage
 
-__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "tracker_params", "ShirtCapture", "ROC_THRESHOLDS"]
+__all__ = ["ShirtSession", "start_session", "ShirtRun", "track_sequence", "tracker_params", "ShirtCapture", "ROC_THRESHOLDS",
+           "prepare_shirt_caches"]
 
 ROC_THRESHOLDS = np.concatenate([np.linspace(0.0, 12.0, 61), [3.0, 5.0]])
 """The classifiers' thresholds a run's ROC is counted at: the plot's 0-12 and the operating points (3 and 5)."""
@@ -76,6 +80,26 @@ def start_session(stage: Stage, frames: np.ndarray, gt: GroundTruth,
     db, training = _database_and_training(stage, progress_factory)
     ids0 = np.stack([gt.id_maps[n][0] for n in gt.camera_names])
     return _session(stage, db, training, frames[0], ids0, render_empty_frames(stage))
+
+
+def prepare_shirt_caches(scenarios: Iterable[Scenario], progress_factory: ProgressFactory | None = None) -> int:
+    """Build, or find, the pose database and training of each distinct colour-shirt scenario of ``scenarios`` (seeds
+    apart); how many distinct ones there were.
+
+    Why: the workers of a sweep, of ``--seeds`` or of a check that find them missing build them inside a worker, where
+    the user sees log lines but no progress bar (an 80k-pose database takes minutes). The command line calls this
+    before it starts local workers, so the build shows ``progress_factory``'s bar and the workers load the files.
+    """
+    seen: set[str] = set()
+    for sc in scenarios:
+        if not sc.subject.shirt:
+            continue
+        key = json.dumps({k: v for k, v in sc.model_dump(mode="json").items() if k not in ("seed", "name", "description")},
+                         sort_keys=True, default=str)
+        if key not in seen:
+            seen.add(key)
+            _database_and_training(build_stage(sc), progress_factory)
+    return len(seen)
 
 
 def _database_and_training(stage: Stage, progress_factory: ProgressFactory | None) -> tuple[PoseDatabase, ShirtTraining]:
