@@ -169,3 +169,30 @@ def test_cli_sweep_refuses_a_database_folder_that_holds_another_database(tmp_pat
     assert len(lines) == 1
     assert "outdoor.duckdb" in lines[0] and "office.duckdb" in lines[0] and "its own folder" in lines[0]
     assert sorted(q.name for q in folder.iterdir()) == ["office.duckdb"]
+
+
+def test_a_stopped_pools_manager_thread_that_outlives_the_wait_leaves_the_exit_hooks_list():
+    """Python 3.11's exit hook writes to each listed pool's wake-up pipe without the lock its manager thread closes
+    it under: a thread still alive after the wait is taken out of that list (simbench.sweeps.sweep)."""
+    import concurrent.futures.process as cf_process
+    import threading
+    import types
+
+    from simbench.sweeps.sweep import _join_manager_thread
+
+    release = threading.Event()
+    thread = threading.Thread(target=release.wait, daemon=True)  # a manager thread still closing its pipe
+    thread.start()
+    finished = threading.Thread(target=lambda: None)  # a manager thread that has ended
+    cf_process._threads_wakeups[thread] = object()
+    try:
+        _join_manager_thread(types.SimpleNamespace(_executor_manager_thread=thread), timeout_s=0.05)
+        assert thread not in cf_process._threads_wakeups
+        finished.start()
+        cf_process._threads_wakeups[finished] = object()
+        _join_manager_thread(types.SimpleNamespace(_executor_manager_thread=finished), timeout_s=5.0)
+        assert finished in cf_process._threads_wakeups  # one that ended is left to the hook, which skips its closed pipe
+    finally:
+        release.set()
+        cf_process._threads_wakeups.pop(thread, None)
+        cf_process._threads_wakeups.pop(finished, None)

@@ -18,7 +18,7 @@ from typing import Optional
 import typer
 
 from simbench.cli import bench, exchange, shirt, study, sweep
-from simbench.cli.common import EXIT_STAGE_FAILED, console, print_error, progress_bar, run_app, user_errors
+from simbench.cli.common import EXIT_STAGE_FAILED, console, prepare_shirt_caches_here, print_error, progress_bar, run_app, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="Simulation-validated test bench for optical motion capture.")
 OUT_HELP = ("output folder; an earlier simbench output (a folder holding .simbench-output.json) or an empty "
@@ -114,11 +114,9 @@ def run(scenario: Path = typer.Argument(..., help="scenario TOML"),
 def _run_seeds(sc, out: Path, n: int, start, overrides, workers, scheduler) -> None:
     """``simbench run --seeds N``: the replicate runs, then each metric's mean, CI and spread."""
     from simbench.cli.sweep import counting_progress
-    from simbench.pipelines.shirt import prepare_shirt_caches
     from simbench.sweeps.seeds import run_seeds
 
-    if scheduler is None:  # local workers: a missing shirt database is built here, with its progress bar
-        prepare_shirt_caches([sc], progress_bar)
+    prepare_shirt_caches_here([sc], scheduler)
     prog, on_record = counting_progress(f"run {sc.name}, {n} seeds", n)
     with prog:
         result = run_seeds(sc, out, n, start, overrides, workers, scheduler, on_record)

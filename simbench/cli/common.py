@@ -127,3 +127,16 @@ def progress_bar(description: str, total: int):
                     TimeElapsedColumn(), TextColumn("eta"), TimeRemainingColumn(), console=console)
     task = prog.add_task(escape(description), total=total)  # a scenario name is shown as written
     return prog, lambda n=1: prog.advance(task, n)
+
+
+def prepare_shirt_caches_here(scenarios, scheduler: str | None) -> None:
+    """Before local workers start (``scheduler`` None): build a missing colour-shirt database and training in this
+    process, with a progress bar (:func:`simbench.pipelines.shirt.prepare_shirt_caches`). The shirt pipeline, and faiss
+    and numba with it, is imported only when a scenario wears the shirt: a marker sweep's process stays as light as
+    before."""
+    scenarios = list(scenarios)
+    if scheduler is not None or not any(sc.subject.shirt for sc in scenarios):
+        return
+    from simbench.pipelines.shirt import prepare_shirt_caches
+
+    prepare_shirt_caches(scenarios, progress_bar)

@@ -17,7 +17,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from simbench.cli.common import console, progress_bar, user_errors
+from simbench.cli.common import console, prepare_shirt_caches_here, user_errors
 from simbench.errors import SimbenchInputError
 
 
@@ -64,10 +64,7 @@ def sweep(sweep_file: Path = typer.Argument(..., help="sweep TOML (scenarios/swe
         for r in sw.runs:
             print(r.run_id, " ".join(f"{k}={v}" for k, v in r.factors.items()))
         return
-    if scheduler is None:  # local workers: a missing shirt database is built here, with its progress bar
-        from simbench.pipelines.shirt import prepare_shirt_caches
-
-        prepare_shirt_caches((r.scenario for r in sw.runs), progress_bar)
+    prepare_shirt_caches_here((r.scenario for r in sw.runs), scheduler)
     prog = runs_progress(sw.name)
     task = prog.add_task(sw.name, total=len(sw.runs), failed=0, skipped=0)
 
@@ -237,10 +234,7 @@ def _run_suite(rg, suites, suite, only, set_, out, outputs, workers, scheduler, 
     else:
         runs, unrunnable = suites.resolve(suite, only=only, extra_set=parse_overrides(set_))
     per = len(next(iter(seeds.values()))) if isinstance(seeds, dict) else (seeds or 1)
-    if scheduler is None:  # local workers: a missing shirt database is built here, with its progress bar
-        from simbench.pipelines.shirt import prepare_shirt_caches
-
-        prepare_shirt_caches((r.scenario for r in runs), progress_bar)
+    prepare_shirt_caches_here((r.scenario for r in runs), scheduler)
     prog = runs_progress(f"suite {suite}")
     task = prog.add_task(f"suite {suite}" + (f", {per} seeds each" if per > 1 else ""), total=per * len(runs) + len(unrunnable),
                          failed=len(unrunnable), skipped=0, completed=len(unrunnable))
@@ -292,10 +286,7 @@ def compare(first: Path = typer.Argument(..., help="scenario TOML, `simbench run
         if out is not None:
             replaceable_state(out)
         label = lambda p, ov: f"{p}" + (f" ({' '.join(f'{k}={v}' for k, v in ov.items())})" if ov else "")  # noqa: E731
-        if scheduler is None:  # local workers: a missing shirt database is built here, with its progress bar
-            from simbench.pipelines.shirt import prepare_shirt_caches
-
-            prepare_shirt_caches([sc_a, sc_b], progress_bar)
+        prepare_shirt_caches_here([sc_a, sc_b], scheduler)
         prog, on_record = counting_progress(f"compare {sc_a.name}, {seeds} seeds x 2", 2 * seeds)
         with prog:
             cmp = cp.run_two(sc_a, sc_b, seeds, seed_start, (label(first, ov_a), label(path_b, ov_b)), ({**both, **ov_a}, {**both, **ov_b}),

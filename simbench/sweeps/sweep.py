@@ -18,6 +18,7 @@ on. Results are stored by :mod:`simbench.sweeps.results_db`.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import concurrent.futures.process as cf_process
 import ctypes
 import multiprocessing
 import os
@@ -227,18 +228,24 @@ def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
             p.join(1.0)
 
 
-def _join_manager_thread(pool: cf.ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+def _join_manager_thread(pool: cf.ProcessPoolExecutor, timeout_s: float = 30.0) -> None:
     """Wait for a stopped pool's manager thread to finish closing its wake-up pipe.
 
     Python 3.11's exit hook (``concurrent.futures.process._python_exit``) writes to every
     live pool's wake-up pipe without the lock the manager thread closes it under; if the
     interpreter exits while that thread is still closing it, the hook prints an
     ``OSError: [Errno 9] Bad file descriptor`` traceback after the interrupt line (seen in
-    CI). Once the thread has ended the pipe is marked closed and the hook skips it.
+    CI in session 15, and again in session 27's fresh-clone run, when a 5 s wait was not
+    enough on a loaded machine). Once the thread has ended the pipe is marked closed and
+    the hook skips it; the workers are dead by now, so it ends as soon as it runs. A thread
+    still alive after ``timeout_s`` is taken out of the hook's list, so that the hook does
+    not write to the pipe it may be closing (the interpreter still joins it at exit).
     """
     thread = getattr(pool, "_executor_manager_thread", None)  # no public API
     if thread is not None and thread.is_alive():
         thread.join(timeout_s)
+        if thread.is_alive():
+            cf_process._threads_wakeups.pop(thread, None)  # no public API either
 
 
 def iter_local(tasks: list[RunTask], workers: int, claim: Callable[[RunTask], bool] | None = None) -> Iterator[RunRecord]:
