@@ -30,7 +30,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, ContextManager, Iterator
+from typing import Callable, ContextManager, Iterator, TypeVar
 
 import numpy as np
 from filelock import FileLock, Timeout
@@ -46,6 +46,8 @@ from simbench.scenes.humanoid import humanoid_mjcf
 from simbench.scenes.shirt import COLOUR_NAMES, PATCH_COLOUR
 from simbench.scenes.surface import body_surface
 
+T = TypeVar("T")
+
 __all__ = [
     "OCCLUDER_BODIES",
     "FACING_VIEWER",
@@ -57,7 +59,7 @@ __all__ = [
     "build_database",
     "cache_dir",
     "cache_lock",
-    "file_stamp",
+    "read_or_build",
     "default_database_path",
     "ensure_database",
     "ProgressFactory",
@@ -235,12 +237,8 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
     """
     named = path is not None
     path = Path(path) if path is not None else default_database_path(params, sampling)
-    seen = file_stamp(path)
-    if seen is not None and (db := _load_cached(path, named)) is not None:  # written whole or not at all: no lock to read
-        return db
-    with cache_lock(path):
-        if file_stamp(path) not in (None, seen) and (db := _load_cached(path, named)) is not None:
-            return db  # another process built it meanwhile
+
+    def build() -> PoseDatabase:
         where = (f"shirt_pipeline.database = {str(path)!r} does not exist" if named
                  else f"no cached shirt pose database for this subject and database_size ({path})")
         log.warning("%s: building it now, %d poses (how long it takes is said 10 s in; `simbench shirt build-db` "
@@ -253,11 +251,28 @@ def ensure_database(params: BodyParams, sampling: PoseSampling, path: str | Path
             with prog:
                 db = build_database(params, sampling, progress=lambda n: (advance(n), estimate.advance(n)))
         db.save(path)
-    log.info("wrote %s (%d poses)", path, len(db))
-    return db
+        log.info("wrote %s (%d poses)", path, len(db))
+        return db
+
+    return read_or_build(path, lambda p: _load_cached(p, named), build)
 
 
-def file_stamp(path: Path) -> tuple[int, int] | None:
+def read_or_build(path: Path, read: Callable[[Path], T | None], build: Callable[[], T]) -> T:
+    """What ``read`` finds in the cache file at ``path`` (None: unreadable), else what ``build`` makes and writes there.
+
+    A whole file is read without the lock (files are written whole or not at all); to build, :func:`cache_lock` is
+    taken and the file looked at again, so that processes that want it at once build it once.
+    """
+    seen = _file_stamp(path)
+    if seen is not None and (found := read(path)) is not None:
+        return found
+    with cache_lock(path):
+        if _file_stamp(path) not in (None, seen) and (found := read(path)) is not None:
+            return found  # another process wrote it meanwhile
+        return build()
+
+
+def _file_stamp(path: Path) -> tuple[int, int] | None:
     """``(mtime_ns, size)`` of the file at ``path``, None when there is none: whether another process wrote it."""
     try:
         st = path.stat()

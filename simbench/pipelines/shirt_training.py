@@ -29,7 +29,7 @@ from mocap.shirt.pose_database import PoseDatabase
 from mocap.shirt.kinematics import UPPER_NV
 from mocap.shirt.shirt_model import ShirtModel
 from simbench.errors import SimbenchInputError
-from simbench.pipelines.shirt_database import cache_dir, cache_lock, file_stamp
+from simbench.pipelines.shirt_database import cache_dir, read_or_build
 from simbench.pipelines.shirt_inputs import colour_labels, session_inputs
 from simbench.scenario import Scenario
 from simbench.stage.build import build_stage
@@ -174,12 +174,8 @@ def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> Shir
     """The cached training for this scenario's rig (trained and cached when missing or unreadable; processes that
     want it at once train once, :func:`~simbench.pipelines.shirt_database.cache_lock`)."""
     path = cache_dir() / f"shirt_training_{_training_key(scenario, db, n_frames)}.npz"
-    seen = file_stamp(path)
-    if seen is not None and (tr := _read_training(path)) is not None:  # written whole or not at all: no lock to read
-        return tr
-    with cache_lock(path):
-        if file_stamp(path) not in (None, seen) and (tr := _read_training(path)) is not None:
-            return tr  # another process trained meanwhile
+
+    def train() -> ShirtTraining:
         log.info("shirt training %s missing: training on %d frames of other takes", path.name, n_frames)
         tr = train_shirt_pipeline(scenario, db, n_frames)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -187,7 +183,9 @@ def ensure_training(scenario: Scenario, db: PoseDatabase, n_frames: int) -> Shir
             np.savez(tmp, means=tr.colour_model.means, covariances=tr.colour_model.covariances, names=np.array(tr.colour_model.names),
                      centroid_cov=tr.priors.centroid_cov, blend_std=tr.priors.blend_std, motion_std=tr.priors.motion_std,
                      n_frames=np.array(tr.priors.n_frames), info=np.array(json.dumps(tr.info)))
-    return tr
+        return tr
+
+    return read_or_build(path, _read_training, train)
 
 
 def _read_training(path: Path) -> ShirtTraining | None:
