@@ -14,11 +14,11 @@ import os
 import secrets
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 from mocap.errors import MocapInputError
 
-__all__ = ["atomic_target", "atomic_write_text", "atomic_write_bytes"]
+__all__ = ["atomic_target", "atomic_write_text", "atomic_write_bytes", "check_output_file"]
 
 
 @contextmanager
@@ -72,3 +72,24 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes, *, fsync: bool = Fa
             if fsync:
                 fh.flush()
                 os.fsync(fh.fileno())
+
+
+def check_output_file(path: str | os.PathLike, ours: Callable[[Path], bool], what: str, *,
+                      error: type[Exception] = MocapInputError,
+                      how: str = "choose another path, or move or remove it yourself") -> None:
+    """Before any work: a single-file output ``path`` may be written when it does not exist, or when ``ours(path)``
+    says it is ``what`` (the kind of file this writer writes, which a rerun replaces). Otherwise raises ``error``
+    with one line naming the path and ``how`` to go on: a file the writer did not write is never replaced."""
+    path = Path(path)
+    if path.is_symlink():
+        raise error(f"{path}: is a symbolic link; it will not be replaced; {how}")
+    if not path.exists():
+        return
+    if not path.is_file():
+        raise error(f"{path}: exists and is not a file; it will not be replaced; {how}")
+    try:
+        mine = ours(path)
+    except OSError:
+        mine = False
+    if not mine:
+        raise error(f"{path}: exists and is not {what}; it will not be replaced; {how}")

@@ -41,7 +41,7 @@ from mocap.calib.observations import BoardObservations, WandObservations
 from mocap.calib.views import IMAGE_SUFFIXES, VIDEO_SUFFIXES, ViewSource, detect_board_views, iter_views
 from mocap.calib.wand import WandSpec, label_collinear_wand, triangulate_wand, wand_initial_rig
 from mocap.calib.world_frame import camera_transform, floor_transform, transform_cameras, transform_points, transform_poses
-from mocap.atomic_files import atomic_write_text
+from mocap.atomic_files import atomic_write_text, check_output_file
 from mocap.calibration import Calibration, Camera
 from mocap.errors import InputFileError
 
@@ -447,11 +447,8 @@ _OWN_MARKS = (b'convention = "x_cam = R(rotation) @ x_world + translation"', b"c
 def check_calibration_outputs(out: str | os.PathLike) -> None:
     """Before calibrating: each file :func:`write_calibration` would write at ``out`` is absent or one it wrote."""
     for path, mark in zip(calibration_paths(out), _OWN_MARKS):
-        if not path.exists() and not path.is_symlink():
-            continue
-        if path.is_symlink() or not path.is_file() or mark not in path.read_bytes():
-            raise CalibrationError(f"{path}: exists and was not written by mocap calibrate; it will not be replaced; "
-                                   "choose another --out, or move or remove it yourself")
+        check_output_file(path, lambda p, mark=mark: mark in p.read_bytes(), "a file written by mocap calibrate",
+                          error=CalibrationError, how="choose another --out, or move or remove it yourself")
 
 
 def write_calibration(result: CalibrationResult, out: str | os.PathLike) -> list[Path]:

@@ -37,7 +37,7 @@ import time
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Literal
 
 from simbench import interrupts
 from simbench.errors import SimbenchInputError
@@ -145,27 +145,6 @@ def replaceable_state(out: Path) -> Literal["absent", "empty", "ours"]:
         return "empty"
     raise OutputPathError(f"{out}: exists and was not written by simbench (no {MARKER} in it); it will not be "
                           f"replaced or deleted; {how}")
-
-
-def check_output_file(path: Path, ours: Callable[[Path], bool], what: str) -> None:
-    """Before any work: a single-file output ``path`` may be written when it does not exist (in a folder that
-    does) or when it is ``what`` as the bench writes it (``ours(path)``, e.g. a pose database or a seed table that
-    a rerun replaces). Raises :class:`OutputPathError` (one line naming the path and what to do) otherwise."""
-    how = "choose another path, or move or remove it yourself"
-    if path.is_symlink():
-        raise OutputPathError(f"{path}: is a symbolic link; simbench does not replace it; {how}")
-    if not path.exists():
-        if not path.parent.is_dir():
-            raise OutputPathError(f"{path}: the folder {str(path.parent)!r} does not exist; create it or choose another path")
-        return
-    if not path.is_file():
-        raise OutputPathError(f"{path}: exists and is not a file; simbench will not replace it; {how}")
-    try:
-        mine = ours(path)
-    except OSError:
-        mine = False
-    if not mine:
-        raise OutputPathError(f"{path}: exists and is not {what} written by simbench; it will not be replaced; {how}")
 
 
 def pid_alive(pid: int) -> bool:

@@ -103,3 +103,21 @@ def test_a_written_file_has_the_mode_a_plain_write_gives(tmp_path):
     plain.write_text("x")
     atomic_write_text(tmp_path / "atomic.txt", "x")
     assert (tmp_path / "atomic.txt").stat().st_mode == plain.stat().st_mode
+
+
+def test_check_output_file_refuses_links_folders_and_files_of_another_kind_before_any_work(tmp_path):
+    from mocap.atomic_files import check_output_file
+
+    ours = tmp_path / "ours.md"
+    ours.write_text("| seed | a table we wrote\n")
+    is_ours = lambda p: p.read_text().startswith("| seed |")  # noqa: E731
+    check_output_file(ours, is_ours, "a seed table")  # replaced by a rerun: allowed
+    check_output_file(tmp_path / "new.md", is_ours, "a seed table")  # absent: allowed
+    (tmp_path / "notes.md").write_text("mine")
+    (tmp_path / "link.md").symlink_to(ours)
+    (tmp_path / "folder.md").mkdir()
+    for name, problem in (("notes.md", "exists and is not a seed table"), ("link.md", "is a symbolic link"),
+                          ("folder.md", "exists and is not a file")):
+        with pytest.raises(MocapInputError, match=problem):
+            check_output_file(tmp_path / name, is_ours, "a seed table")
+    assert (tmp_path / "notes.md").read_text() == "mine" and ours.read_text().startswith("| seed |")

@@ -264,7 +264,7 @@ def test_calibrate_out_never_replaces_a_file_it_did_not_write(tmp_path, taken):
     res = CliRunner().invoke(app, ["calibrate", f"cam0={tmp_path / 'nowhere'}", "--out", str(tmp_path / "rig")])
     assert res.exit_code == 2, res.output
     line = " ".join(res.output.split())
-    assert f"{tmp_path / taken}: exists and was not written by mocap calibrate; it will not be replaced" in line
+    assert f"{tmp_path / taken}: exists and is not a file written by mocap calibrate; it will not be replaced" in line
     assert [p.name for p in tmp_path.iterdir()] == [taken] and (tmp_path / taken).read_text() == "the user's own file\n"
 
 

@@ -220,7 +220,7 @@ def test_check_shows_unrunnable_scenarios_as_error_rows_and_exits_3(short_tmp):
     refused = CliRunner().invoke(app, ["check", "--suite", "t", "--suites", str(tmp_path / "suites.toml"),
                                        "--baseline", str(tmp_path / "base.json"), "--junit", str(tmp_path / "mine.xml")])
     assert refused.exit_code == 2 and (tmp_path / "mine.xml").read_text() == "<notes/>"
-    assert "is not a JUnit file of simbench check written by simbench" in " ".join(refused.output.split())
+    assert "is not a JUnit file written by simbench check; it will not be replaced" in " ".join(refused.output.split())
     assert "ERROR" not in refused.output
 
 

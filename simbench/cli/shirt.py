@@ -26,8 +26,9 @@ def build_db_command(
     seed: int = typer.Option(0, "--seed"),
 ) -> None:
     """Sample, rasterise and index upper-body poses of the humanoid (40x40 id maps)."""
+    from mocap.atomic_files import check_output_file
     from mocap.shirt.pose_database import PoseDatabase  # faiss: on use
-    from simbench.output_dir import check_output_file
+    from simbench.output_dir import OutputPathError
     from simbench.pipelines.shirt_database import PoseSampling, build_database, default_database_path
     from simbench.scenes.anthropometry import BodyParams
 
@@ -35,7 +36,7 @@ def build_db_command(
     params = BodyParams(height_m=height_m)
     path = out or default_database_path(params, sampling)
     if out is not None:  # before the build: a file of the user's is not replaced
-        check_output_file(out, PoseDatabase.is_database, "a pose database")
+        check_output_file(out, PoseDatabase.is_database, "a pose database written by simbench", error=OutputPathError)
     prog, advance = progress_bar(f"shirt database ({n_poses} poses)", n_poses)
     t0 = time.perf_counter()
     with prog:
@@ -51,12 +52,12 @@ def seed_table_command(
     out: Optional[Path] = typer.Option(None, "--out", help="also write the table (Markdown) to this file"),
 ) -> None:
     """Full method against baseline, seed by seed: joint RMSE (cm), median, share <= 4 cm, share >= 20 % better."""
-    from mocap.atomic_files import atomic_write_text
-    from simbench.output_dir import check_output_file
+    from mocap.atomic_files import atomic_write_text, check_output_file
+    from simbench.output_dir import OutputPathError
     from simbench.sweeps.shirt_table import is_seed_table, read_seed_rows, seed_table_markdown, summarise
 
     if out is not None:
-        check_output_file(out, is_seed_table, "a seed table")
+        check_output_file(out, is_seed_table, "a seed table written by simbench", error=OutputPathError)
     rows = read_seed_rows(databases)
     text = seed_table_markdown(rows, summarise(rows))
     typer.echo(text, nl=False)

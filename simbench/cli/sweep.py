@@ -133,13 +133,14 @@ def check(suite: str = typer.Option(..., "--suite", help="suite name in the suit
 
     Exit codes: 0 every metric within tolerance; 1 a metric regressed, is missing, or has no tolerance; 2 a bad command line, suites file or baseline (one line, nothing run); 3 a scenario could not run (whether or not others regressed).
     """
-    from simbench.output_dir import check_output_file
+    from mocap.atomic_files import check_output_file
+    from simbench.output_dir import OutputPathError
     from simbench.sweeps import regression as rg
 
     suites = rg.load_suites(suites_file)
     suites.get(suite)  # an unknown suite: a user error before anything runs
     if junit is not None:  # a file of the user's there is not replaced (checked before anything runs)
-        check_output_file(junit, rg.is_check_junit, "a JUnit file of simbench check")
+        check_output_file(junit, rg.is_check_junit, "a JUnit file written by simbench check", error=OutputPathError)
     base_path = baseline or rg.default_baseline_path(suites_file, suite)
     base = rg.load_baseline(base_path)
     if calibrate:
