@@ -117,6 +117,8 @@ class MarkerCapture:
     trajectories : labelled 3D trajectories ``(F, M, 3)`` metres
     skeleton : solved skeleton (``mocap.skeleton_fit.SkeletonFit``) or None
     timings_ms : stage name -> total milliseconds
+    labelling : ``"model"`` (labels from the subject's skeleton or a labelled trial's marker clusters)
+        or ``"tracker"`` (seed 000's T-pose first frame kept by 2D trackers)
     """
 
     detections: list[list[Detections]]
@@ -126,6 +128,7 @@ class MarkerCapture:
     skeleton: object | None
     timings_ms: dict[str, float]
     reassociation: dict[str, int] = field(default_factory=dict)
+    labelling: str = "tracker"
 
 
 class DetectionStream:
@@ -206,7 +209,7 @@ def capture_from_detections(
     stats["swaps_repaired"] = sum(1 for e in passes.swaps if e[0] == "swap")
     stats["jump_samples_removed"] = sum(1 for e in passes.swaps if e[0] == "jump")
     tracks = Tracks2D(tracks.labels, passes.measured.xy, tracks.predicted_xy, tracks.status, tracks.camera_names)
-    return MarkerCapture(passes.detections, init, tracks, passes.traj, fit, timings, stats)
+    return MarkerCapture(passes.detections, init, tracks, passes.traj, fit, timings, stats, "model" if use_model else "tracker")
 
 
 def _has_limbs(detections: list[list[Detections]]) -> bool:

@@ -137,3 +137,20 @@ def test_calibration_that_is_not_one(inputs, content: str) -> None:
     vids = [_video(d / f"cam{i}.avi", 4) for i in range(3)]
     _one_clear_line(_markers(vids, bad, tmpl, d / "cap"), "bad.yml")
     _nothing_written(d, d / "cap")
+
+
+def test_labelled_trial_refused_before_any_work(inputs) -> None:
+    """--labelled-trial with --subject, of another file type, or without the template's markers: one line
+    naming the option or the file, before the videos are read (they hold no marker here)."""
+    from mocap.exports import write_trc
+    from mocap.types import Trajectories
+
+    d, cal, tmpl = inputs
+    vids = [_video(d / f"cam{i}.avi", 4) for i in range(3)]
+    r = _markers(vids, cal, tmpl, d / "cap", "--labelled-trial", str(d / "t.trc"), "--subject", str(d / "s.toml"))
+    _one_clear_line(r, "--labelled-trial", "given with --subject")
+    (d / "trial.txt").write_text("A,B,C\n")
+    _one_clear_line(_markers(vids, cal, tmpl, d / "cap", "--labelled-trial", str(d / "trial.txt")), "trial.txt", "file type '.txt'")
+    other = write_trc(d / "other.trc", Trajectories(["X", "Y", "Z"], np.random.default_rng(0).normal(size=(5, 3, 3)), np.arange(5) / 30))
+    _one_clear_line(_markers(vids, cal, tmpl, d / "cap", "--labelled-trial", str(other)), "other.trc", "holds 0 of the template's 3 markers")
+    _nothing_written(d, d / "cap")

@@ -70,3 +70,36 @@ def test_mocap_markers_cli_on_the_rendered_videos(quickstart_run, tmp_path):
     assert np.isfinite(err).mean() > 0.98
     assert np.sqrt(np.nanmean(err**2)) < 0.002
     assert (tmp_path / "cap" / "skeleton.bvh").is_file()
+
+
+def test_mocap_markers_labelled_trial_on_a_take_that_does_not_start_in_a_t_pose(quickstart_run, tmp_path_factory):
+    """Real videos without a subject model: `mocap markers --labelled-trial` labels a take that starts
+    mid-wave (clip seconds 1.5-2.5) from the marker clusters of another take of the subject (the
+    fixture's seconds 0-1.5, as `simbench run` exported it). Without the trial the labels start from a
+    T-pose the first frame does not show, and the command says so."""
+    from typer.testing import CliRunner
+
+    from mocap.cli.app import app
+    from simbench.stage.ground_truth import load_ground_truth
+
+    _, trial_run = quickstart_run
+    take = tmp_path_factory.mktemp("mid") / "take"
+    run_scenario(load_scenario("scenarios/quickstart.toml", overrides={"motion.start_s": 1.5, "duration_s": 1.0}), take)
+    gt = load_ground_truth(take)
+    outs = {}
+    for name, extra in (("none", []), ("trial", ["--labelled-trial", str(trial_run / "exports" / "markers.c3d")])):
+        out = take.parent / name
+        r = CliRunner().invoke(app, ["markers", *sorted(str(p) for p in (take / "videos").glob("*.mp4")),
+                                     "--calibration", str(take / "calibration_ground_truth.yml"),
+                                     "--template", str(take / "exports" / "label_template.csv"), "--out", str(out), *extra])
+        assert r.exit_code == 0, r.stderr
+        traj = read_c3d(out / "markers.c3d")
+        err = np.linalg.norm(traj.xyz[:, [traj.labels.index(n) for n in gt.marker_names]] - gt.markers_3d, axis=-1)
+        outs[name] = (json.loads((out / "summary.json").read_text()), err, r.stderr)
+    summary, err, stderr = outs["trial"]
+    assert summary["labelling"] == "model" and "note:" not in stderr
+    assert np.isfinite(err).mean() >= 0.97
+    assert np.sqrt(np.nanmean(err**2)) < 0.002 and np.nanmax(err) < 0.02  # no marker mislabelled
+    summary, err_none, stderr = outs["none"]
+    assert summary["labelling"] == "tracker" and "no --subject or --labelled-trial" in " ".join(stderr.split())
+    assert np.isfinite(err_none).mean() < np.isfinite(err).mean()

@@ -33,6 +33,9 @@ def markers(
     template: Path = typer.Option(..., "--template", help="label template CSV: name,x,y,z of the T-pose (m)"),
     out: Path = typer.Option(..., "--out", help="output directory"),
     subject: Optional[Path] = typer.Option(None, "--subject", help="subject model (MJCF with marker sites, or its TOML) to solve the skeleton"),
+    labelled_trial: Optional[Path] = typer.Option(None, "--labelled-trial", help="without a subject model: a labelled trial of "
+                                                  "the same subject and markers (C3D, TRC or CSV; a range of motion, an earlier "
+                                                  "capture); each marker is labelled from its most rigid neighbours in it"),
     tracker: str = typer.Option("kalman", "--tracker", help="2D tracker (registry name or module:Class)"),
     mode: str = typer.Option("ir", "--mode", help="'ir' (bright markers, dark scene) or 'visible'"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frame rate (default: read from the first video)"),
@@ -51,7 +54,12 @@ def markers(
     With --timestamps the cameras may run on their own clocks: each camera's offset and drift
     relative to the first are estimated from the markers' motion (mocap.synchronisation), the
     blobs are interpolated to the first camera's frame instants, and summary.json gives the
-    estimated clocks. With --readout-ms the rows' times are corrected (mocap.rolling_shutter)."""
+    estimated clocks. With --readout-ms the rows' times are corrected (mocap.rolling_shutter).
+
+    Labels come from a model of the subject found in any frame: its skeleton (--subject) or the
+    rigid marker clusters of a labelled trial (--labelled-trial). Without either, or with two
+    cameras, they start from a T-pose in the first frame and 2D trackers keep them (seed 000),
+    which loses them when the subject does not start in a T-pose."""
     from mocap.detection import DetectionParams, iter_video_frames
     from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, export_capture
@@ -75,11 +83,7 @@ def markers(
         raise InputFileError(Path("--marker-diameter-mm"), f"value {marker_diameter_mm!r}",
                              "give the markers' diameter in mm (e.g. 14), or 0 if unknown")
     out_dir = Path(out)
-    subj = None
-    if subject is not None:
-        from mocap.subject import SubjectModel
-
-        subj = SubjectModel.load(subject)
+    subj, trial = _labelling_model(subject, labelled_trial, tmpl, len(cal))
     params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None,
                                   marker_radius_m=marker_diameter_mm * 0.5e-3)
     with _output_errors(out_dir), atomic_output_dir(out_dir) as tmp:
@@ -90,12 +94,48 @@ def markers(
         if sum(len(d) for per_cam in stream.detections for d in per_cam) == 0:
             raise InputFileError(paths[0], "no marker blob was found in any frame of any video",
                                  f"check --mode ({mode}: 'ir' finds bright markers on a dark scene, 'visible' white markers on a lit subject) and the exposure")
-        capture, sync_summary = _capture(stream, cal, tmpl, params, seed, subj, stamps, fps, readout_ms * 1e-3)
+        capture, sync_summary = _capture(stream, cal, tmpl, params, seed, subj, stamps, fps, readout_ms * 1e-3,
+                                         trial.model if trial is not None else None)
+        if capture.labelling == "tracker" and (subj is not None or trial is not None) and len(cal) >= 3:
+            console.print(f"note: the {'skeleton' if subj is not None else 'labelled trial'} fitted no frame with "
+                          f"confidence: {_TRACKER_LABELS}", markup=False, highlight=False, soft_wrap=True)
         files = export_capture(capture, tmp, cal, subj)
         summary = _markers_summary(capture, files, out_dir, sync_summary)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2))
     console.print(f"{summary['frames']} frames, {summary['markers']} labels, reconstructed {summary['reconstructed_fraction']:.3f}; wrote {out_dir}/",
                   markup=False)
+
+
+_TRACKER_LABELS = ("labels start from a T-pose in the first frame and 2D trackers keep them; a subject who does not "
+                   "start in a T-pose loses them")
+
+
+def _labelling_model(subject: Path | None, labelled_trial: Path | None, tmpl, n_cameras: int):
+    """``(subject model or None, labelled trial or None)`` from ``--subject`` and ``--labelled-trial``
+    (one of them at most); says on the console how the labels will be found when it is not by a model."""
+    if subject is not None and labelled_trial is not None:
+        raise InputFileError(Path("--labelled-trial"), "given with --subject",
+                             "give one: --subject labels with the skeleton, --labelled-trial without one")
+    subj = trial = None
+    if subject is not None:
+        from mocap.subject import SubjectModel
+
+        subj = SubjectModel.load(subject)
+    elif labelled_trial is not None:
+        from mocap.labelled_trial import load_labelled_trial
+
+        trial = load_labelled_trial(labelled_trial, list(tmpl.names))
+        if trial.missing:
+            console.print(f"note: {labelled_trial} does not hold {len(trial.missing)} of the template's markers "
+                          f"({', '.join(trial.missing)}): they are left unlabelled", markup=False, highlight=False, soft_wrap=True)
+        if trial.is_static:
+            console.print(f"note: the markers of {labelled_trial} barely move ({trial.travel_m * 1e3:.0f} mm, median): its "
+                          "clusters follow nearness alone; a range-of-motion trial tells the body's segments apart",
+                          markup=False, highlight=False, soft_wrap=True)
+    if n_cameras < 3 or (subj is None and trial is None):
+        why = "two cameras cannot confirm a model's labels" if n_cameras < 3 else "no --subject or --labelled-trial"
+        console.print(f"note: {why}: {_TRACKER_LABELS}", markup=False, highlight=False, soft_wrap=True)
+    return subj, trial
 
 
 def _check_mode_and_tracker(mode: str, tracker: str) -> None:
@@ -137,7 +177,7 @@ def _read_camera_timestamps(paths: list[Path], probes: list) -> list[np.ndarray]
 
 
 def _capture(stream, cal: Calibration, tmpl, params, seed: int, subj, stamps: list[np.ndarray] | None, fps: float,
-             readout_s: float = 0.0):
+             readout_s: float = 0.0, marker_model=None):
     """The marker pipeline on the detected blobs of ``stream``.
 
     Synchronised cameras: frame ``i`` at ``i / fps`` seconds. With ``stamps`` (per camera
@@ -153,16 +193,16 @@ def _capture(stream, cal: Calibration, tmpl, params, seed: int, subj, stamps: li
         times = np.arange(len(stream.detections[0])) / fps
         if readout_s > 0:
             return capture_rolling_shutter(stream.detections, times, readout_s, cal, tmpl, params, np.random.default_rng(seed),
-                                           subj, stream.ms), None
+                                           subj, stream.ms, marker_model), None
         return capture_from_detections(stream.detections, cal, tmpl, times, params, np.random.default_rng(seed), subj,
-                                       stream.ms), None
+                                       stream.ms, marker_model), None
     n = len(stream.detections[0])
     stamps = [t[:n] for t in stamps]
     detections = stream.detections
     if readout_s > 0:
         detections = correct_rolling_shutter(detections, stamps, readout_s, [c.size[1] for c in cal])
     capture, sync = capture_unsynchronised(detections, stamps, cal, tmpl, params,
-                                           np.random.default_rng(seed), subj, stream.ms)
+                                           np.random.default_rng(seed), subj, stream.ms, marker_model)
     sync_summary = {"reference": cal.names[sync.reference], "model": "s_reference = offset + (1 + drift) * s_camera",
                     "offset_ms": {c: round(float(o) * 1e3, 4) for c, o in zip(cal.names, sync.offset_s)},
                     "drift_ppm": {c: round(float(d) * 1e6, 2) for c, d in zip(cal.names, sync.drift)}}
@@ -175,6 +215,7 @@ def _markers_summary(capture, files: dict, out_dir: Path, sync_summary: dict | N
     have = np.isfinite(traj.xyz).all(-1)
     summary = {"frames": int(traj.xyz.shape[0]), "markers": len(traj.labels),
                "reconstructed_fraction": float(have.mean()),
+               "labelling": capture.labelling,
                "timings_ms": {k: round(v, 1) for k, v in capture.timings_ms.items()},
                "files": {k: str(out_dir / Path(v).name) for k, v in files.items()}}
     if sync_summary is not None:

@@ -1,0 +1,97 @@
+"""A labelled trial of the subject as the labelling model of a capture without a skeleton.
+
+Input: a capture file of the same subject and marker set whose markers are already labelled
+(C3D, TRC or the pipeline's CSV; a range-of-motion take, or an earlier capture), and the label
+template's marker names. Output: a :class:`LabelledTrial` holding the
+:class:`~mocap.cluster_labelling.ClusterMarkerModel` that :func:`mocap.marker_pipeline.capture_from_detections`
+labels with (``marker_model=``). This is the subject calibration commercial systems make from a
+labelled trial. The model uses only the markers' positions relative to their neighbours, so the
+trial may come from another session, calibration or world frame; its length unit is read from
+the file.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from mocap.cluster_labelling import ClusterMarkerModel
+from mocap.errors import InputFileError
+
+__all__ = ["STATIC_TRAVEL_M", "TRIAL_SUFFIXES", "LabelledTrial", "load_labelled_trial"]
+
+TRIAL_SUFFIXES = (".c3d", ".trc", ".csv")
+"""The file types a labelled trial can be read from."""
+
+STATIC_TRAVEL_M = 0.05
+"""Below this :attr:`LabelledTrial.travel_m` a trial is static: the shared data's two standing trials
+(``Sample_Static.c3d`` 4 mm, ``Res16bits.c3d`` 14 mm) against 0.5-12 m for its takes of motion."""
+
+
+@dataclass(frozen=True)
+class LabelledTrial:
+    """A labelled trial read for a capture.
+
+    Attributes
+    ----------
+    model : ClusterMarkerModel
+        Of the template's markers that the trial holds, in the template's order.
+    frames : int
+        Frames of the trial with three or more of those markers seen.
+    missing : tuple[str, ...]
+        Template markers the trial does not hold: a capture leaves them unlabelled.
+    travel_m : float
+        How far the markers move over the trial (median over markers of the largest extent of
+        each one's positions, metres). Rigidity is learned from motion: in a static trial every
+        distance is constant, and the clusters follow nearness alone (:data:`STATIC_TRAVEL_M`).
+    """
+
+    model: ClusterMarkerModel
+    frames: int
+    missing: tuple[str, ...]
+    travel_m: float
+
+    @property
+    def is_static(self) -> bool:
+        """Whether the markers barely move (a standing calibration trial rather than a range of motion)."""
+        return self.travel_m < STATIC_TRAVEL_M
+
+
+def load_labelled_trial(path: str | os.PathLike, names: Sequence[str]) -> LabelledTrial:
+    """Read a labelled trial (``.c3d``, ``.trc`` or ``.csv``) and learn the rigid marker clusters of
+    the markers ``names`` (the label template's) from it.
+
+    Raises :class:`~mocap.errors.InputFileError` (naming the file) for another file type, a file
+    the readers refuse, fewer than three of ``names`` in it, or fewer than two frames that see
+    three of them (rigidity is learned from motion).
+    """
+    from mocap.exports import read_c3d, read_csv, read_trc
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    readers = {".c3d": read_c3d, ".trc": read_trc, ".csv": read_csv}
+    if suffix not in readers:
+        raise InputFileError(path, f"file type {path.suffix or '(none)'!r}",
+                             f"give the labelled trial as one of {', '.join(TRIAL_SUFFIXES)}")
+    if not path.is_file():
+        raise InputFileError(path, "no such file", "give the path of an existing labelled trial")
+    traj = readers[suffix](path)
+    shared = [n for n in names if n in traj.labels]
+    if len(shared) < 3:
+        raise InputFileError(path, f"holds {len(shared)} of the template's {len(names)} markers "
+                             f"({', '.join(shared) or 'none of them'}; the trial has {', '.join(list(traj.labels)[:6]) or 'no labels'}"
+                             f"{', ...' if len(traj.labels) > 6 else ''})",
+                             "give a trial labelled with the template's marker names (3 or more of them)")
+    xyz = np.asarray(traj.xyz, dtype=np.float64)[:, [list(traj.labels).index(n) for n in shared]]
+    frames = int((np.isfinite(xyz).all(axis=2).sum(axis=1) >= 3).sum())
+    if frames < 2:
+        raise InputFileError(path, f"has {frames} frame{'' if frames == 1 else 's'} with 3 or more of the template's markers",
+                             "give a trial of the subject moving (a range of motion): the clusters are learned from motion")
+    with np.errstate(all="ignore"):  # a marker never seen has no extent (NaN), left out of the median
+        extent = np.nanmax(np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0), axis=1)
+    travel = float(np.nanmedian(extent)) if np.isfinite(extent).any() else 0.0
+    return LabelledTrial(ClusterMarkerModel(shared, xyz), frames, tuple(n for n in names if n not in shared), travel)
