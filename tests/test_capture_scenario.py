@@ -309,6 +309,24 @@ def test_run_scores_a_capture_without_a_humanoid(tmp_path):
     assert metrics["markers.reconstructed_fraction"] > 0.9
     assert metrics["markers.p95_error_mm"] < 5.0
     assert result.capture is not None and result.capture.skeleton is None
+    # What a user of real videos does: `mocap markers` on the run's MP4s with the real file as the labelled
+    # trial (all of it, its own world frame) labels them as the run did (there: the frames' window)
+    from typer.testing import CliRunner
+
+    from mocap.cli.app import app
+    from mocap.exports import read_c3d
+    from simbench.stage.ground_truth import load_ground_truth
+
+    r = CliRunner().invoke(app, ["markers", *sorted(str(v) for v in (out / "videos").glob("*.mp4")),
+                                 "--calibration", str(out / "calibration_ground_truth.yml"),
+                                 "--template", str(out / "exports" / "label_template.csv"),
+                                 "--labelled-trial", str(QUALISYS), "--out", str(tmp_path / "cli")])
+    assert r.exit_code == 0, r.stderr
+    assert json.loads((tmp_path / "cli" / "summary.json").read_text())["labelling"] == "model"
+    traj, gt = read_c3d(tmp_path / "cli" / "markers.c3d"), load_ground_truth(out)
+    err = np.linalg.norm(traj.xyz[:, [traj.labels.index(n) for n in gt.marker_names]] - gt.markers_3d, axis=-1)
+    assert np.isfinite(err).mean() >= metrics["markers.reconstructed_fraction"] - 0.02
+    assert np.nanpercentile(err, 95) < 0.005
 
 
 def test_source_label_swaps_are_exchanged_back_and_reported():
