@@ -103,3 +103,23 @@ def test_mocap_markers_labelled_trial_on_a_take_that_does_not_start_in_a_t_pose(
     summary, err_none, stderr = outs["none"]
     assert summary["labelling"] == "tracker" and "no --subject or --labelled-trial" in " ".join(stderr.split())
     assert np.isfinite(err_none).mean() < np.isfinite(err).mean()
+
+
+def test_score_markers_script_gives_the_runs_own_figures(quickstart_run, capsys):
+    """scripts/score_markers.py on the run's exported C3D: the RMSE and label swaps that metrics.json
+    states for the same points (the script's fraction is over all true points, the run's over those
+    two cameras saw, so it can only be lower)."""
+    import importlib.util
+    from pathlib import Path
+
+    _, out = quickstart_run
+    spec = importlib.util.spec_from_file_location("score_markers", Path(__file__).parents[1] / "scripts" / "score_markers.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([str(out), str(out / "exports" / "markers.c3d")]) == 0
+    line = capsys.readouterr().out
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert f"RMSE {metrics['markers.rmse_mm']:.2f} mm" in line, line
+    assert f"{metrics['markers.label_swaps']} label swaps" in line, line
+    fraction = float(line.split("reconstructed ")[1].split(",")[0])
+    assert 0.9 < fraction <= metrics["markers.reconstructed_fraction"] + 1e-3, line

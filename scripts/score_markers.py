@@ -1,0 +1,57 @@
+"""Score a capture file against the ground truth of a `simbench run` or `simbench render` folder.
+
+    python scripts/score_markers.py RUN_DIR CAPTURE.c3d [CAPTURE.trc ...]
+
+Input: the folder's ``ground_truth/`` (its markers' true positions) and one or more capture files
+(C3D, TRC or the pipeline's CSV) labelled with the same marker names, e.g. what `mocap markers`
+wrote from the folder's videos. Output, one line per file: the fraction of all true points
+reconstructed, the RMSE (mm), the points more than 20 mm off (mislabels) and the label swaps
+(eval.marker_metrics). Markers the capture lacks count as not reconstructed.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from eval.marker_metrics import label_swaps, marker_errors_m
+from mocap.exports import read_c3d, read_csv, read_trc
+from simbench.stage.ground_truth import load_ground_truth
+
+READERS = {".c3d": read_c3d, ".trc": read_trc, ".csv": read_csv}
+
+
+def score(run_dir: Path, capture: Path) -> str:
+    """One line of figures for ``capture`` against ``run_dir``'s ground truth."""
+    gt = load_ground_truth(run_dir)
+    traj = READERS[capture.suffix.lower()](capture)
+    est = np.full_like(gt.markers_3d, np.nan)
+    for m, name in enumerate(gt.marker_names):
+        if name in traj.labels:
+            est[:, m] = traj.xyz[:, list(traj.labels).index(name)]
+    err_mm = marker_errors_m(est, gt.markers_3d) * 1e3
+    seen = np.isfinite(err_mm)
+    rmse = float(np.sqrt(np.mean(err_mm[seen] ** 2))) if seen.any() else float("nan")
+    return (f"{capture}: reconstructed {seen.mean():.3f}, RMSE {rmse:.2f} mm, "
+            f"{int((err_mm[seen] > 20).sum())} of {int(seen.sum())} points > 20 mm off, "
+            f"{label_swaps(est, gt.markers_3d)} label swaps")
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) < 2:
+        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        return 2
+    run_dir = Path(argv[0])
+    for name in argv[1:]:
+        path = Path(name)
+        if path.suffix.lower() not in READERS:
+            print(f"error: {path}: file type {path.suffix!r}; give a .c3d, .trc or .csv", file=sys.stderr)
+            return 2
+        print(score(run_dir, path))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
