@@ -102,6 +102,9 @@ def test_mocap_markers_labelled_trial_on_a_take_that_does_not_start_in_a_t_pose(
     assert np.sqrt(np.nanmean(err**2)) < 0.002 and np.nanmax(err) < 0.02  # no marker mislabelled
     summary, err_none, stderr = outs["none"]
     assert summary["labelling"] == "tracker" and "no --subject or --labelled-trial" in " ".join(stderr.split())
+    # the T-pose fit of a mid-wave first frame finds under half the template (0.44; the T-pose start: 0.75)
+    assert 0.2 < summary["first_frame_found"] < 0.6 and "first frame found" in " ".join(stderr.split())
+    assert "first_frame_found" not in outs["trial"][0]
     assert np.isfinite(err_none).mean() < np.isfinite(err).mean()
 
 
