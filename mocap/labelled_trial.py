@@ -80,7 +80,7 @@ def load_labelled_trial(path: str | os.PathLike, names: Sequence[str]) -> Labell
         raise InputFileError(path, f"file type {path.suffix or '(none)'!r}",
                              f"give the labelled trial as one of {', '.join(TRIAL_SUFFIXES)}")
     if not path.is_file():
-        raise InputFileError(path, "no such file", "give the path of an existing labelled trial")
+        raise InputFileError(path, "is a folder" if path.is_dir() else "no such file", "give the path of a labelled trial file")
     traj = readers[suffix](path)
     shared = [n for n in names if n in traj.labels]
     if len(shared) < 3:

@@ -478,6 +478,22 @@ def mocap_cases(n: int, rng: np.random.Generator) -> list[Case]:
         c("--mode bogus", ("--mode",), extra=("--mode", "bogus")),
         c("--tracker unknown", ("--tracker",), extra=("--tracker", "no_such_tracker")),
         c("--subject missing", ("nope.toml",), extra=("--subject", "{d}/nope.toml")),
+        c("--labelled-trial missing", ("nope.c3d",), extra=("--labelled-trial", "{d}/nope.c3d")),
+        c("--labelled-trial with --subject", ("--labelled-trial", "--subject"),
+          extra=("--labelled-trial", "{d}/t.c3d", "--subject", "{d}/s.toml")),
+        c("a labelled trial of another file type", ("trial.txt",), _write("trial.txt", b"A,B,C\n"),
+          extra=("--labelled-trial", "{d}/trial.txt")),
+        c("a garbage labelled trial", ("trial.c3d",), _write("trial.c3d", b"\x00\x01garbage\xff" * 40),
+          extra=("--labelled-trial", "{d}/trial.c3d")),
+        c("an empty labelled trial", ("trial.trc",), _write("trial.trc", b""), extra=("--labelled-trial", "{d}/trial.trc")),
+        c("a labelled trial without time_s", ("trial.csv", "time_s"), _write("trial.csv", b"frame,A_x_mm,A_y_mm,A_z_mm\n0,1,2,3\n"),
+          extra=("--labelled-trial", "{d}/trial.csv")),
+        c("a labelled trial of other markers", ("trial.csv",), _write("trial.csv", _trial_csv(("X", "Y", "Z"), 5)),
+          extra=("--labelled-trial", "{d}/trial.csv")),
+        c("a labelled trial of one frame", ("trial.csv",), _write("trial.csv", _trial_csv(("A", "B", "C"), 1)),
+          extra=("--labelled-trial", "{d}/trial.csv")),
+        c("a labelled trial that is a folder", ("trial.c3d",), lambda d: (d / "trial.c3d").mkdir(),
+          extra=("--labelled-trial", "{d}/trial.c3d")),
         c("a failure after the export began", ("cap",), patch=_failing_export),
         c("a take of one frame", ("cam0.avi",), lambda d: _synthetic_take(d, n_frames=1)),
         c("a video that is a folder", ("cam1.avi",), lambda d: ((d / "cam1.avi").unlink(), (d / "cam1.avi").mkdir())),
@@ -489,6 +505,13 @@ def mocap_cases(n: int, rng: np.random.Generator) -> list[Case]:
     for i, case in enumerate(cases):
         case.label = f"m{i:02d} {case.label}"
     return cases
+
+
+def _trial_csv(labels: tuple[str, ...], frames: int) -> bytes:
+    """A labelled trial as the pipeline's CSV: ``labels`` at fixed offsets moving together over ``frames``."""
+    head = "frame,time_s," + ",".join(f"{n}_{a}_mm" for n in labels for a in "xyz")
+    rows = [f"{f},{f / 30:.4f}," + ",".join(f"{100 * i + f:.1f},{50 * i:.1f},1000" for i in range(len(labels))) for f in range(frames)]
+    return ("\n".join([head, *rows]) + "\n").encode()
 
 
 def _one_camera_calibration(d: Path) -> None:
