@@ -250,6 +250,14 @@ def test_mocap_shirt_refuses_a_folder_it_did_not_write_and_bad_inputs_before_any
     writer.release()
     res = CliRunner().invoke(app, args([small, *videos[1:]], tmp_path / "small"))
     assert res.exit_code == 2 and "was calibrated at" in res.output and not (tmp_path / "small").exists()
+    # two scribble files after one --scribbles: the second is read as a video; the error says to repeat the option
+    one_option = args(videos, tmp_path / "once")
+    one_option = [a for a in one_option if a != "--scribbles"]
+    one_option.insert(one_option.index(str(out / "shirt" / f"scribbles_{cams[0]}.png")), "--scribbles")
+    res = CliRunner().invoke(app, one_option)
+    text = " ".join(res.output.split())
+    assert res.exit_code == 2 and f"scribbles_{cams[1]}.png" in text and "--scribbles and --empty once per file" in text, text
+    assert not (tmp_path / "once").exists()
 
 
 @pytest.fixture(scope="module")

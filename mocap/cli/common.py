@@ -46,19 +46,26 @@ def exit_on_user_errors(*errors: type[Exception], console: Console = console):
 user_errors = exit_on_user_errors(MocapInputError)
 
 
-def order_videos_by_camera(videos: list[Path], camera_names: list[str]) -> list[Path]:
-    """Match video files to calibration cameras by file stem (``cam0.mp4`` -> ``cam0``), else by order."""
+def order_videos_by_camera(videos: list[Path], camera_names: list[str], per_camera_options: tuple[str, ...] = ()) -> list[Path]:
+    """Match video files to calibration cameras by file stem (``cam0.mp4`` -> ``cam0``), else by order.
+
+    ``per_camera_options``: the command's options that take a file per camera; with more videos than
+    cameras the error says to repeat them (a second file after ``--scribbles A.png`` is read as a video)."""
+    repeat = ""
+    if per_camera_options and len(videos) > len(camera_names):
+        repeat = (f"; give {' and '.join(per_camera_options)} once per file ({per_camera_options[0]} A --{per_camera_options[0].lstrip('-')}"
+                  " B): a file after the first is read as a video")
     stems = {v.stem: v for v in videos}
     if all(n in stems for n in camera_names):
         extra = [v for v in videos if v.stem not in camera_names]
         if extra or len(videos) != len(camera_names):
             raise InputFileError(extra[0] if extra else videos[0], f"{len(videos)} videos for {len(camera_names)} calibrated cameras "
                                  f"{camera_names}" + (f"; {extra[0].name} is none of them" if extra else ", some twice"),
-                                 "pass one video per calibrated camera")
+                                 "pass one video per calibrated camera" + repeat)
         return [stems[n] for n in camera_names]
     if len(videos) != len(camera_names):
         raise InputFileError(videos[0] if videos else Path("."), f"{len(videos)} videos for {len(camera_names)} calibrated cameras {camera_names}",
-                             "pass one video per camera, named after the camera (e.g. cam0.mp4) or in calibration order")
+                             "pass one video per camera, named after the camera (e.g. cam0.mp4) or in calibration order" + repeat)
     return list(videos)
 
 

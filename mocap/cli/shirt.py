@@ -80,11 +80,13 @@ def shirt(
     database: Path = typer.Option(..., "--database", help="pose database (.npz from `simbench shirt build-db`)"),
     colour_model: Path = typer.Option(..., "--colour-model", help="colour model (.npz, ColourModel.save)"),
     priors: Path = typer.Option(..., "--priors", help="IK covariances (.npz, IKPriors.save)"),
-    scribbles: list[Path] = typer.Option(..., "--scribbles", help="one label PNG per camera for the init frame"),
+    scribbles: list[Path] = typer.Option(..., "--scribbles", help="one label PNG per camera for the init frame, in "
+                                         "calibration order; repeat the option: --scribbles A.png --scribbles B.png"),
     out: Path = typer.Option(..., "--out", help="output directory"),
     init_frame: int = typer.Option(0, "--init-frame", help="frame the scribbles label; tracking starts there"),
     frames: Optional[int] = typer.Option(None, "--frames", help="number of frames to track (default: all)"),
-    empty: list[Path] = typer.Option([], "--empty", help="videos of the empty scene, one per camera (background model)"),
+    empty: list[Path] = typer.Option([], "--empty", help="videos of the empty scene, one per camera (background model), "
+                                     "in calibration order; repeat the option: --empty A.mp4 --empty B.mp4"),
     baseline: bool = typer.Option(False, "--baseline", help="run the baseline (no pose prior, fixed white balance)"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frame rate (default: read from the first video)"),
     seed: int = typer.Option(0, "--seed", help="seed of the not-shirt colour clustering"),
@@ -100,7 +102,7 @@ def shirt(
     from rich.progress import track
 
     cal = Calibration.load(calibration)
-    paths = order_videos_by_camera(list(videos), cal.names)
+    paths = order_videos_by_camera(list(videos), cal.names, ("--scribbles", "--empty"))
     n_todo, fps = _check_inputs(paths, cal, scribbles, empty, init_frame, frames, fps)
     db = PoseDatabase.load(database)
     cm = ColourModel.load(colour_model)
