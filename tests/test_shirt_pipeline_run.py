@@ -348,3 +348,23 @@ def test_the_lock_on_script_records_each_stage_without_changing_the_tracking(shi
     a = {s: float(rec["agreement:" + s]) for s in STAGES[:-1]}
     assert a["pass1"] >= max(a["step3+h"], a["step1+h"])
     assert 0.0 < a["step3"] <= 1.0 and 0.0 < a["step1"] <= 1.0
+
+
+def test_score_shirt_script_gives_the_runs_own_figures(shirt_run, capsys):
+    """scripts/score_shirt.py on the run's shirt/poses.npz prints the run's joint RMSE and arms fraction for
+    both methods (the same eval.shirt_metrics; the run has no frame without a pose to fill forward)."""
+    import importlib.util
+    from pathlib import Path
+
+    _, out, _ = shirt_run
+    spec = importlib.util.spec_from_file_location("score_shirt", Path(__file__).parents[1] / "scripts" / "score_shirt.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main([str(out), str(out / "shirt" / "poses.npz")]) == 0
+    text = capsys.readouterr().out
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["shirt.tracked_fraction"] == 1.0
+    for key, prefix in (("full_joint_centres_m", "shirt."), ("baseline_joint_centres_m", "shirt.baseline_")):
+        line = next(ln for ln in text.splitlines() if f" {key}:" in ln)
+        assert f"joint RMSE {m[prefix + 'joint_rmse_cm']:.2f} cm" in line, line
+        assert f"on {m[prefix + 'arms_within_5cm_fraction']:.3f} of" in line, line
