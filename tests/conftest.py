@@ -17,8 +17,10 @@ collected first, so that the workers start on them and the fast modules fill in 
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -34,6 +36,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 #: ``../shared/data`` relative to the repository.
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def load_script(name: str) -> ModuleType:
+    """The repository's ``scripts/NAME.py`` as a module (its ``main`` called in-process: no new interpreter)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(scope="session")

@@ -112,13 +112,10 @@ def test_score_markers_script_gives_the_runs_own_figures(quickstart_run, capsys)
     """scripts/score_markers.py on the run's exported C3D: the RMSE and label swaps that metrics.json
     states for the same points (the script's fraction is over all true points, the run's over those
     two cameras saw, so it can only be lower)."""
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_script
 
     _, out = quickstart_run
-    spec = importlib.util.spec_from_file_location("score_markers", Path(__file__).parents[1] / "scripts" / "score_markers.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_script("score_markers")
     assert script.main([str(out), str(out / "exports" / "markers.c3d")]) == 0
     line = capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())

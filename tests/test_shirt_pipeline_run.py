@@ -353,13 +353,10 @@ def test_the_lock_on_script_records_each_stage_without_changing_the_tracking(shi
 def test_score_shirt_script_gives_the_runs_own_figures(shirt_run, capsys):
     """scripts/score_shirt.py on the run's shirt/poses.npz prints the run's joint RMSE and arms fraction for
     both methods (the same eval.shirt_metrics; the run has no frame without a pose to fill forward)."""
-    import importlib.util
-    from pathlib import Path
+    from conftest import load_script
 
     _, out, _ = shirt_run
-    spec = importlib.util.spec_from_file_location("score_shirt", Path(__file__).parents[1] / "scripts" / "score_shirt.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_script("score_shirt")
     assert script.main([str(out), str(out / "shirt" / "poses.npz")]) == 0
     text = capsys.readouterr().out
     m = json.loads((out / "metrics.json").read_text())
