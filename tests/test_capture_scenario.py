@@ -215,6 +215,7 @@ def test_user_errors_name_the_field(tmp_path):
         ('c3d = "a.c3d"\nbvh = "b.bvh"', r"one motion source"),
         ("gaps = { fraction = 0.2 }", r"capture file only"),
         ("marker_diameter_mm = 5.0", r"marker_diameter_mm.*capture file only"),
+        ('subject_trial = "rest"', r"subject_trial.*capture file only"),
     ]:
         p.write_text(f'name = "gone"\n[motion]\n{motion}\n')
         with pytest.raises(ScenarioError, match=match):
@@ -402,3 +403,28 @@ def test_codamotion_scenario_leaves_out_exactly_the_wand_markers_that_cross():
     d = np.linalg.norm(kept[:, :, None] - kept[:, None], axis=3)
     d[:, np.arange(d.shape[1]), np.arange(d.shape[1])] = np.inf
     assert np.nanmin(d) > 0.025
+
+
+def test_rest_trial_is_the_files_samples_outside_the_window(tmp_path):
+    """motion.subject_trial = "rest": the labelled trial the pipeline calibrates the subject from is the file's
+    samples outside the rendered window (another trial of the same subject), not the window's frames; a window
+    that leaves fewer than two such samples is refused, naming the field."""
+    labels, raw, rate = _raw_qualisys_m()
+    sc = _scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.5\nsubject_trial = "rest"', "fps = 100.0\nduration_s = 0.5")
+    bench = build_stage(sc)
+    ref = bench.capture_reference()
+    t_file = np.arange(len(raw)) / rate
+    outside = (t_file < 0.5 - 1e-9) | (t_file > 1.0 + 1e-9)
+    np.testing.assert_allclose(ref.times, t_file[outside])
+    assert ref.labels == bench.clip.labels
+    # the file's own positions there (the scene's horizontal shift applied, as to every position of the clip)
+    idx = [labels.index(n) for n in ref.labels]
+    expect = raw[outside][:, idx]
+    expect = expect + np.r_[bench.clip.shift_xy, 0.0]
+    np.testing.assert_allclose(ref.xyz, expect, atol=1e-9)
+    take = build_stage(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.5', "fps = 100.0\nduration_s = 0.5",
+                                 name="take")).capture_reference()
+    assert len(take.times) == 50 and take.times.max() < 0.5 + 1e-9  # scenario time, the window's frames
+    with pytest.raises(ScenarioError, match=r"motion.subject_trial.*has 1 sample with 3 markers or more outside the window 0-1.69 s"):
+        load_capture_clip(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nsubject_trial = "rest"', "fps = 100.0\nduration_s = 1.69",
+                                    name="all"))

@@ -89,6 +89,10 @@ class MotionConfig(FrozenModel):
     labels: tuple[str, ...] | None = Field(None, description="c3d/trc: the markers to render (default: every physical marker)")
     up_axis: Literal["auto", "x", "y", "z"] = Field("auto", description="c3d/trc: the file's up axis (auto: from the file)")
     gaps: CaptureGapsConfig | None = Field(None, description="c3d/trc: seeded artificial gaps")
+    subject_trial: Literal["take", "rest"] = Field(
+        "take", description="c3d/trc: the labelled trial the marker pipeline learns the markers' rigid clusters and its "
+        "label template from: 'take', the rendered window itself (a subject calibration made on the very frames "
+        "captured), or 'rest', the file's samples outside the window (another trial of the same subject, as a user has)")
     marker_diameter_mm: Real | None = Field(
         None, ge=CAPTURE_MARKER_DIAMETER_MM[0], le=CAPTURE_MARKER_DIAMETER_MM[1],
         description="c3d/trc: diameter of the rendered marker spheres, the capture system's marker size "
@@ -138,7 +142,8 @@ class MotionConfig(FrozenModel):
                 raise ValueError(f"clip = {self.clip!r} conflicts with `{capture}`; leave clip out")
             object.__setattr__(self, "clip", capture)  # says what drives the scene (`simbench info`)
         else:
-            extra = [k for k in ("labels", "gaps", "marker_diameter_mm") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
+            extra = ([k for k in ("labels", "gaps", "marker_diameter_mm") if getattr(self, k) is not None] + (["up_axis"] if self.up_axis != "auto" else [])
+                     + (["subject_trial"] if self.subject_trial != "take" else []))
             if extra:
                 raise ValueError(f"{', '.join(extra)} apply to a capture file only; give `c3d` or `trc`")
         return self

@@ -111,6 +111,19 @@ class CaptureClip:
         a, b = self.source_xyz[i0], self.source_xyz[i1]
         return (1.0 - w) * a + w * b  # NaN propagates: missing if either sample used is missing
 
+    def outside_window(self, duration_s: float) -> np.ndarray:
+        """``(N,)`` bool: the file's samples outside the capture window of a scenario ``duration_s`` long
+        (before ``start_s`` or after ``start_s + speed * duration_s``)."""
+        t = np.arange(len(self.source_xyz)) / self.rate_hz
+        return (t < self.start_s - 1e-9) | (t > self.start_s + self.speed * duration_s + 1e-9)
+
+    def rest_reference(self, duration_s: float) -> "CaptureReference":
+        """The file's samples outside the window (:meth:`outside_window`) as a labelled trial: another trial
+        of the same subject, its times the file's own (seconds from its first sample); the file's own label
+        swaps there are left as they are, as a user's trial would have them."""
+        out = self.outside_window(duration_s)
+        return CaptureReference(self.labels, self.source_xyz[out], np.flatnonzero(out) / self.rate_hz)
+
     def frame_index(self, times: np.ndarray) -> np.ndarray:
         """Rendered frame ``k`` of each scenario instant (``floor(t * fps)``, clipped to the window)."""
         t = np.asarray(times, dtype=np.float64).reshape(-1)

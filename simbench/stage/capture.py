@@ -136,6 +136,8 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
     if not seen.any():
         raise ScenarioError(where, "motion.start_s", m.start_s,
                             f"no marker of {given} has a sample in the window {m.start_s:g}-{end_s:g} s; move the window")
+    if m.subject_trial == "rest":
+        _check_rest_trial(provisional, scenario, given, end_s)
     dropped = tuple(n for n, s in zip(names, seen) if not s)
     keep = np.flatnonzero(seen)
     xyz, names, at_frames = xyz[:, keep], [names[i] for i in keep], at_frames[:, keep]
@@ -154,6 +156,16 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
     return CaptureClip(tuple(names), xyz, rate, m.start_s, m.speed, scenario.fps, gap_mask, shift, Path(given),
                        set_aside=dict(traj.set_aside), dropped=dropped, source_up_axis=traj.source_up_axis,
                        up_axis_reason=traj.up_axis_reason, label_repairs=repairs)
+
+
+def _check_rest_trial(clip: CaptureClip, scenario: Scenario, given: str, end_s: float) -> None:
+    """``motion.subject_trial = "rest"`` needs 2 samples or more outside the window that see 3 markers or more."""
+    out = clip.outside_window(scenario.duration_s)
+    usable = int((np.isfinite(clip.source_xyz[out]).all(axis=2).sum(axis=1) >= 3).sum())
+    if usable < 2:
+        raise ScenarioError(scenario.source_dir or scenario.name, "motion.subject_trial", "rest",
+                            f"{given} has {usable} sample{'' if usable == 1 else 's'} with 3 markers or more outside the "
+                            f"window {scenario.motion.start_s:g}-{end_s:g} s; use 'take', or shorten or move the window")
 
 
 def repair_window_swaps(xyz: np.ndarray, names: list[str], rate_hz: float, start_s: float, end_s: float
@@ -247,7 +259,10 @@ class CaptureStage(Stage):
         return renderer
 
     def capture_reference(self) -> CaptureReference:
-        """The capture's labelled trajectories at the frame times (what a user's subject
-        calibration of this marker set gives): see :class:`CaptureReference`."""
+        """The labelled trial the marker pipeline calibrates the subject from (see :class:`CaptureReference`):
+        the capture's trajectories at the frame times, or with ``motion.subject_trial = "rest"`` the file's
+        samples outside the window."""
+        if self.scenario.motion.subject_trial == "rest":
+            return self.clip.rest_reference(self.scenario.duration_s)
         times = self.frame_times()
         return CaptureReference(self.clip.labels, self.clip.file_positions_at(times), times)
