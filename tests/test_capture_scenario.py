@@ -428,3 +428,19 @@ def test_rest_trial_is_the_files_samples_outside_the_window(tmp_path):
     with pytest.raises(ScenarioError, match=r"motion.subject_trial.*has 1 sample with 3 markers or more outside the window 0-1.69 s"):
         load_capture_clip(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nsubject_trial = "rest"', "fps = 100.0\nduration_s = 1.69",
                                     name="all"))
+
+
+def test_subject_trial_at_its_default_keeps_the_scenario_hash():
+    """`motion.subject_trial` came after the baselines and sweep databases: at its default ("take", what every
+    run before it did) it is left out of the content hash, so their hashes of the same scenarios stay; "rest"
+    is another scenario."""
+    import hashlib
+    import json
+
+    sc = load_scenario(Path(__file__).resolve().parents[1] / "scenarios" / "c3d_qualisys_gaps.toml")
+    data = sc.model_dump(mode="json")
+    data.pop("seeds", None)
+    del data["motion"]["subject_trial"]
+    before = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:16]
+    assert sc.content_hash() == before
+    assert sc.with_overrides({"motion.subject_trial": "rest"}).content_hash() != before
