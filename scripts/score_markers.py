@@ -27,6 +27,9 @@ def score(run_dir: Path, capture: Path) -> str:
     """One line of figures for ``capture`` against ``run_dir``'s ground truth."""
     gt = load_ground_truth(run_dir)
     traj = READERS[capture.suffix.lower()](capture)
+    if len(traj.xyz) != gt.n_frames:
+        raise SystemExit(f"error: {capture}: {len(traj.xyz)} frames against the {gt.n_frames} of {run_dir}'s ground truth; "
+                         "score a capture of that folder's videos")
     est = np.full_like(gt.markers_3d, np.nan)
     for m, name in enumerate(gt.marker_names):
         if name in traj.labels:
