@@ -28,7 +28,7 @@ def score(run_dir: Path, capture: Path) -> str:
     gt = load_ground_truth(run_dir)
     traj = READERS[capture.suffix.lower()](capture)
     if len(traj.xyz) != gt.n_frames:
-        raise SystemExit(f"error: {capture}: {len(traj.xyz)} frames against the {gt.n_frames} of {run_dir}'s ground truth; "
+        raise ValueError(f"{capture}: {len(traj.xyz)} frames against the {gt.n_frames} of {run_dir}'s ground truth; "
                          "score a capture of that folder's videos")
     est = np.full_like(gt.markers_3d, np.nan)
     for m, name in enumerate(gt.marker_names):
@@ -52,7 +52,11 @@ def main(argv: list[str]) -> int:
         if path.suffix.lower() not in READERS:
             print(f"error: {path}: file type {path.suffix!r}; give a .c3d, .trc or .csv", file=sys.stderr)
             return 2
-        print(score(run_dir, path))
+        try:
+            print(score(run_dir, path))
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     return 0
 
 
