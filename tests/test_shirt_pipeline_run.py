@@ -200,6 +200,16 @@ def test_mocap_shirt_cli_tracks_the_rendered_videos(shirt_run, tmp_path):
     assert err < 7.0
     summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
     assert summary["tracked_fraction"] == 1.0 and "histogram_search" in summary["ms_per_frame"]
+    # the per-camera files in the other order: matched to the cameras by name, the same poses to the bit
+    flipped = args[:args.index("--empty")]
+    for c in reversed(cams):
+        flipped += ["--empty", str(out / "shirt" / f"empty_{c}.mp4")]
+    for c in reversed(cams):
+        flipped += ["--scribbles", str(out / "shirt" / f"scribbles_{c}.png")]
+    flipped[flipped.index("--out") + 1] = str(tmp_path / "flipped")
+    res = CliRunner().invoke(app, flipped)
+    assert res.exit_code == 0, res.output
+    np.testing.assert_array_equal(np.load(tmp_path / "flipped" / "poses.npz")["q"], poses["q"])
     # a scribble file of the wrong size is a user error: one line, exit code 2
     bad = tmp_path / "bad.png"
     import cv2

@@ -8,6 +8,7 @@ import contextlib
 import functools
 import json
 import os
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -67,6 +68,21 @@ def order_videos_by_camera(videos: list[Path], camera_names: list[str], per_came
         raise InputFileError(videos[0] if videos else Path("."), f"{len(videos)} videos for {len(camera_names)} calibrated cameras {camera_names}",
                              "pass one video per camera, named after the camera (e.g. cam0.mp4) or in calibration order" + repeat)
     return list(videos)
+
+
+def order_by_camera_name(files: list[Path], camera_names: list[str]) -> list[Path]:
+    """``files`` (one per camera) in calibration order where each camera's name is a word of exactly one file's
+    stem (``scribbles_left.png`` -> camera ``left``; words split at anything but letters and digits), else as
+    given: the calibration's order. Why: a per-camera input given in another order than the calibration's
+    would be used for the wrong camera without a word said."""
+    def words(path: Path) -> set[str]:
+        return set(re.split(r"[^A-Za-z0-9]+", path.stem))
+
+    owners = {n: [f for f in files if n in words(f)] for n in camera_names}
+    if len(files) == len(camera_names) and all(len(v) == 1 for v in owners.values()) \
+            and len({v[0] for v in owners.values()}) == len(files):
+        return [owners[n][0] for n in camera_names]
+    return list(files)
 
 
 @dataclass(frozen=True)

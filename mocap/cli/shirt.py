@@ -23,7 +23,8 @@ import numpy as np
 import typer
 
 from mocap.calibration import Calibration
-from mocap.cli.common import atomic_output_dir, check_videos_against_calibration, console, order_videos_by_camera, probe_video
+from mocap.cli.common import (atomic_output_dir, check_videos_against_calibration, console, order_by_camera_name,
+                              order_videos_by_camera, probe_video)
 from mocap.errors import InputFileError
 
 __all__ = ["shirt", "load_scribbles"]
@@ -80,13 +81,14 @@ def shirt(
     database: Path = typer.Option(..., "--database", help="pose database (.npz from `simbench shirt build-db`)"),
     colour_model: Path = typer.Option(..., "--colour-model", help="colour model (.npz, ColourModel.save)"),
     priors: Path = typer.Option(..., "--priors", help="IK covariances (.npz, IKPriors.save)"),
-    scribbles: list[Path] = typer.Option(..., "--scribbles", help="one label PNG per camera for the init frame, in "
-                                         "calibration order; repeat the option: --scribbles A.png --scribbles B.png"),
+    scribbles: list[Path] = typer.Option(..., "--scribbles", help="one label PNG per camera for the init frame, "
+                                         "matched to the cameras by a word of its name (scribbles_left.png: camera left), "
+                                         "else in calibration order; repeat the option: --scribbles A.png --scribbles B.png"),
     out: Path = typer.Option(..., "--out", help="output directory"),
     init_frame: int = typer.Option(0, "--init-frame", help="frame the scribbles label; tracking starts there"),
     frames: Optional[int] = typer.Option(None, "--frames", help="number of frames to track (default: all)"),
     empty: list[Path] = typer.Option([], "--empty", help="videos of the empty scene, one per camera (background model), "
-                                     "in calibration order; repeat the option: --empty A.mp4 --empty B.mp4"),
+                                     "matched as --scribbles; repeat the option: --empty A.mp4 --empty B.mp4"),
     baseline: bool = typer.Option(False, "--baseline", help="run the baseline (no pose prior, fixed white balance)"),
     fps: Optional[float] = typer.Option(None, "--fps", help="frame rate (default: read from the first video)"),
     seed: int = typer.Option(0, "--seed", help="seed of the not-shirt colour clustering"),
@@ -104,6 +106,7 @@ def shirt(
     cal = Calibration.load(calibration)
     paths = order_videos_by_camera(list(videos), cal.names, ("--scribbles", "--empty"))
     n_todo, fps = _check_inputs(paths, cal, scribbles, empty, init_frame, frames, fps)
+    scribbles, empty = order_by_camera_name(scribbles, cal.names), order_by_camera_name(empty, cal.names) if empty else empty
     db = PoseDatabase.load(database)
     cm = ColourModel.load(colour_model)
     pr = IKPriors.load(priors)
@@ -150,7 +153,7 @@ def _check_inputs(paths: list[Path], cal: Calibration, scribbles: list[Path], em
     of frames to track and the frame rate (Hz)."""
     if len(scribbles) != len(paths):
         raise InputFileError(scribbles[0] if scribbles else Path("--scribbles"), f"{len(scribbles)} scribble files for {len(paths)} cameras",
-                             "give one --scribbles PNG per camera, in calibration order")
+                             "give one --scribbles PNG per camera (named after it, or in calibration order)")
     if empty and len(empty) != len(paths):
         raise InputFileError(empty[0], f"{len(empty)} empty-scene videos for {len(paths)} cameras", "give one --empty video per camera or none")
     probes = [probe_video(p) for p in paths]
