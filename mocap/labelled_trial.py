@@ -21,8 +21,9 @@ import numpy as np
 
 from mocap.cluster_labelling import ClusterMarkerModel
 from mocap.errors import InputFileError
+from mocap.label_template import LabelTemplate
 
-__all__ = ["STATIC_TRAVEL_M", "TRIAL_SUFFIXES", "LabelledTrial", "load_labelled_trial"]
+__all__ = ["STATIC_TRAVEL_M", "TRIAL_SUFFIXES", "LabelledTrial", "load_labelled_trial", "reference_frame", "template_from_trial"]
 
 TRIAL_SUFFIXES = (".c3d", ".trc", ".csv")
 """The file types a labelled trial can be read from."""
@@ -44,6 +45,8 @@ class LabelledTrial:
         Frames of the trial with three or more of those markers seen.
     missing : tuple[str, ...]
         Template markers the trial does not hold: a capture leaves them unlabelled.
+    template : LabelTemplate
+        The trial's own template of those markers (:func:`template_from_trial`), for a capture given no other.
     travel_m : float
         How far the marker that moves most moves over the trial (the largest extent of its
         positions, metres). Rigidity is learned from motion: in a static trial every distance is
@@ -55,6 +58,7 @@ class LabelledTrial:
     model: ClusterMarkerModel
     frames: int
     missing: tuple[str, ...]
+    template: LabelTemplate
     travel_m: float
 
     @property
@@ -63,9 +67,37 @@ class LabelledTrial:
         return self.travel_m < STATIC_TRAVEL_M
 
 
-def load_labelled_trial(path: str | os.PathLike, names: Sequence[str]) -> LabelledTrial:
+def reference_frame(xyz: np.ndarray) -> int:
+    """The first frame of a labelled trial ``xyz (F, M, 3)`` with the most markers present."""
+    return int(np.argmax(np.isfinite(xyz).all(axis=2).sum(axis=1)))
+
+
+def template_from_trial(labels: Sequence[str], xyz: np.ndarray) -> LabelTemplate:
+    """A :class:`~mocap.label_template.LabelTemplate` of markers ``labels`` from a labelled trial ``xyz (F, M, 3)``
+    metres: its :func:`reference_frame`, in the subject-local frame the template wants.
+
+    Shifted horizontally so the markers' centroid is at the origin (heights kept; the labelling searches every
+    heading). A marker missing in the reference frame takes its position from the nearest frame where it is
+    present, moved by how far the centroid of the markers present in both frames moved (an approximation: the
+    labelling tolerates a few centimetres).
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    ref = reference_frame(xyz)
+    present = np.isfinite(xyz).all(axis=2)  # (F, M)
+    pos = xyz[ref].copy()
+    for m in np.flatnonzero(~present[ref]):
+        frames = np.flatnonzero(present[:, m])
+        f = int(frames[np.argmin(np.abs(frames - ref))])
+        both = present[ref] & present[f]
+        drift = xyz[ref, both].mean(axis=0) - xyz[f, both].mean(axis=0) if both.any() else np.zeros(3)
+        pos[m] = xyz[f, m] + drift
+    pos[:, :2] -= pos[:, :2].mean(axis=0)
+    return LabelTemplate(tuple(labels), pos)
+
+
+def load_labelled_trial(path: str | os.PathLike, names: Sequence[str] | None = None) -> LabelledTrial:
     """Read a labelled trial (``.c3d``, ``.trc`` or ``.csv``) and learn the rigid marker clusters of
-    the markers ``names`` (the label template's) from it.
+    the markers ``names`` (the label template's; None: every marker of the trial) from it.
 
     Raises :class:`~mocap.errors.InputFileError` (naming the file) for another file type, a file
     the readers refuse, fewer than three of ``names`` in it, or fewer than two frames that see
@@ -82,6 +114,7 @@ def load_labelled_trial(path: str | os.PathLike, names: Sequence[str]) -> Labell
     if not path.is_file():
         raise InputFileError(path, "is a folder" if path.is_dir() else "no such file", "give the path of a labelled trial file")
     traj = readers[suffix](path)
+    names = list(traj.labels) if names is None else list(names)
     shared = [n for n in names if n in traj.labels]
     if len(shared) < 3:
         raise InputFileError(path, f"holds {len(shared)} of the template's {len(names)} markers "
@@ -96,4 +129,5 @@ def load_labelled_trial(path: str | os.PathLike, names: Sequence[str]) -> Labell
     with np.errstate(all="ignore"):  # a marker never seen has no extent (NaN), left out
         extent = np.nanmax(np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0), axis=1)
     travel = float(np.nanmax(extent)) if np.isfinite(extent).any() else 0.0
-    return LabelledTrial(ClusterMarkerModel(shared, xyz), frames, tuple(n for n in names if n not in shared), travel)
+    return LabelledTrial(ClusterMarkerModel(shared, xyz), frames, tuple(n for n in names if n not in shared),
+                         template_from_trial(shared, xyz), travel)

@@ -468,6 +468,7 @@ def mocap_cases(n: int, rng: np.random.Generator) -> list[Case]:
         c("a template with a duplicated label", ("template.csv",), _write("template.csv", b"name,x,y,z\nA,0,0,1\nA,0.2,0,1\nC,0,0.2,1.2\n")),
         c("a template row with two columns", ("template.csv",), _write("template.csv", b"name,x,y,z\nA,0,0\nB,0.2,0,1\nC,0,0.2,1.2\n")),
         c("a missing template", ("nope.csv",), opts=(*std[:2], "--template", "{d}/nope.csv", *std[4:])),
+        c("no --template and no --labelled-trial", ("--template",), opts=(*std[:2], *std[4:])),
         c("--fps 0", ("--fps",), extra=("--fps", "0")),
         c("--fps -30", ("--fps",), extra=("--fps", "-30")),
         c("--fps nan", ("--fps",), extra=("--fps", "nan")),

@@ -328,6 +328,16 @@ def test_run_scores_a_capture_without_a_humanoid(tmp_path):
     err = np.linalg.norm(traj.xyz[:, [traj.labels.index(n) for n in gt.marker_names]] - gt.markers_3d, axis=-1)
     assert np.isfinite(err).mean() >= metrics["markers.reconstructed_fraction"] - 0.02
     assert np.nanpercentile(err, 95) < 0.005
+    # without --template: the trial's fullest frame is the template (its markers, in the file's order)
+    r = CliRunner().invoke(app, ["markers", *sorted(str(v) for v in (out / "videos").glob("*.mp4")),
+                                 "--calibration", str(out / "calibration_ground_truth.yml"),
+                                 "--labelled-trial", str(QUALISYS), "--out", str(tmp_path / "cli_no_template")])
+    assert r.exit_code == 0, r.stderr
+    traj2 = read_c3d(tmp_path / "cli_no_template" / "markers.c3d")
+    assert list(traj2.labels) == list(read_c3d(QUALISYS).labels)
+    err2 = np.linalg.norm(traj2.xyz[:, [traj2.labels.index(n) for n in gt.marker_names]] - gt.markers_3d, axis=-1)
+    assert np.isfinite(err2).mean() >= metrics["markers.reconstructed_fraction"] - 0.02
+    assert np.nanpercentile(err2, 95) < 0.005
 
 
 def test_source_label_swaps_are_exchanged_back_and_reported():

@@ -30,7 +30,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help="Optical moti
 def markers(
     videos: list[Path] = typer.Argument(..., help="one video per camera (synchronised)"),
     calibration: Path = typer.Option(..., "--calibration", help="OpenCV YAML or anipose TOML"),
-    template: Path = typer.Option(..., "--template", help="label template CSV: name,x,y,z of the T-pose (m)"),
+    template: Optional[Path] = typer.Option(None, "--template", help="label template CSV: name,x,y,z of the T-pose (m); "
+                                            "with --labelled-trial it may be left out: the trial's fullest frame is the template"),
     out: Path = typer.Option(..., "--out", help="output directory"),
     subject: Optional[Path] = typer.Option(None, "--subject", help="subject model (MJCF with marker sites, or its TOML) to solve the skeleton"),
     labelled_trial: Optional[Path] = typer.Option(None, "--labelled-trial", help="without a subject model: a labelled trial of "
@@ -61,7 +62,6 @@ def markers(
     cameras, they start from a T-pose in the first frame and 2D trackers keep them (seed 000),
     which loses them when the subject does not start in a T-pose."""
     from mocap.detection import DetectionParams, iter_video_frames
-    from mocap.labelling import load_template
     from mocap.marker_pipeline import DetectionStream, MarkerPipelineParams, export_capture
     from rich.progress import track
 
@@ -69,7 +69,7 @@ def markers(
     if len(cal) < 2:
         raise InputFileError(calibration, f"describes {len(cal)} camera ({', '.join(cal.names)})",
                              "markers are triangulated: give the calibration of two cameras or more")
-    tmpl = load_template(template)
+    tmpl, subj, trial = _labelling_inputs(template, subject, labelled_trial)
     paths = order_videos_by_camera(list(videos), cal.names)
     _check_mode_and_tracker(mode, tracker)
     probes = [probe_video(p) for p in paths]
@@ -83,7 +83,6 @@ def markers(
         raise InputFileError(Path("--marker-diameter-mm"), f"value {marker_diameter_mm!r}",
                              "give the markers' diameter in mm (e.g. 14), or 0 if unknown")
     out_dir = Path(out)
-    subj, trial = _labelling_model(subject, labelled_trial, tmpl)
     params = MarkerPipelineParams(detection=DetectionParams(mode=mode), tracker=tracker, solve_skeleton=subj is not None,
                                   marker_radius_m=marker_diameter_mm * 0.5e-3)
     with _output_errors(out_dir), atomic_output_dir(out_dir) as tmp:
@@ -108,21 +107,29 @@ _TRACKER_LABELS = ("labels start from a T-pose in the first frame and 2D tracker
                    "start in a T-pose loses them")
 
 
-def _labelling_model(subject: Path | None, labelled_trial: Path | None, tmpl):
-    """``(subject model or None, labelled trial or None)`` from ``--subject`` and ``--labelled-trial`` (one of
-    them at most), read before any work so that a bad file stops the command at once."""
+def _labelling_inputs(template: Path | None, subject: Path | None, labelled_trial: Path | None):
+    """``(label template, subject model or None, labelled trial or None)`` from ``--template``, ``--subject`` and
+    ``--labelled-trial`` (one of the last two at most; without ``--template`` the trial's), read before any work so
+    that a bad file stops the command at once."""
+    from mocap.labelling import load_template
+
     if subject is not None and labelled_trial is not None:
         raise InputFileError(Path("--labelled-trial"), "given with --subject",
                              "give one: --subject labels with the skeleton, --labelled-trial without one")
+    if template is None and labelled_trial is None:
+        raise InputFileError(Path("--template"), "not given", "give the label template CSV (or --labelled-trial, whose fullest "
+                             "frame is then the template)")
+    tmpl = load_template(template) if template is not None else None
     if subject is not None:
         from mocap.subject import SubjectModel
 
-        return SubjectModel.load(subject), None
+        return tmpl, SubjectModel.load(subject), None
     if labelled_trial is not None:
         from mocap.labelled_trial import load_labelled_trial
 
-        return None, load_labelled_trial(labelled_trial, list(tmpl.names))
-    return None, None
+        trial = load_labelled_trial(labelled_trial, list(tmpl.names) if tmpl is not None else None)
+        return (tmpl if tmpl is not None else trial.template), None, trial
+    return tmpl, None, None
 
 
 def _note(text: str) -> None:

@@ -34,6 +34,7 @@ import numpy as np
 
 from mocap.labelling import LabelTemplate
 from mocap.cluster_labelling import ClusterMarkerModel
+from mocap.labelled_trial import reference_frame, template_from_trial
 
 __all__ = ["CaptureClip", "CaptureReference"]
 
@@ -159,7 +160,7 @@ class CaptureReference:
 
     def reference_frame(self) -> int:
         """The first frame with the most markers present."""
-        return int(np.argmax(np.isfinite(self.xyz).all(axis=2).sum(axis=1)))
+        return reference_frame(self.xyz)
 
     def marker_model(self) -> ClusterMarkerModel:
         """The rigid marker clusters of these trajectories (what a commercial system's subject
@@ -167,22 +168,7 @@ class CaptureReference:
         return ClusterMarkerModel(list(self.labels), self.xyz)
 
     def label_template(self) -> LabelTemplate:
-        """A :class:`~mocap.labelling.LabelTemplate` from the reference frame.
-
-        Subject-local frame as the template wants it: shifted horizontally so the markers'
-        centroid is at the origin (heights kept; the labelling searches every heading). A
-        marker missing in the reference frame takes its position from the nearest frame
-        where it is present, moved by how far the centroid of the markers present in both
-        frames moved (an approximation: the labelling tolerates a few centimetres).
-        """
-        ref = self.reference_frame()
-        present = np.isfinite(self.xyz).all(axis=2)  # (F, M)
-        pos = self.xyz[ref].copy()
-        for m in np.flatnonzero(~present[ref]):
-            frames = np.flatnonzero(present[:, m])
-            f = int(frames[np.argmin(np.abs(frames - ref))])
-            both = present[ref] & present[f]
-            drift = self.xyz[ref, both].mean(axis=0) - self.xyz[f, both].mean(axis=0) if both.any() else np.zeros(3)
-            pos[m] = self.xyz[f, m] + drift
-        pos[:, :2] -= pos[:, :2].mean(axis=0)
-        return LabelTemplate(self.labels, pos)
+        """A :class:`~mocap.labelling.LabelTemplate` from the reference frame, in the subject-local frame the
+        template wants (:func:`mocap.labelled_trial.template_from_trial`: what ``mocap markers
+        --labelled-trial`` takes as its template when given none)."""
+        return template_from_trial(self.labels, self.xyz)
