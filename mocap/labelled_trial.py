@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -23,10 +22,7 @@ from mocap.cluster_labelling import ClusterMarkerModel
 from mocap.errors import InputFileError
 from mocap.label_template import LabelTemplate
 
-__all__ = ["STATIC_TRAVEL_M", "TRIAL_SUFFIXES", "LabelledTrial", "load_labelled_trial", "reference_frame", "template_from_trial"]
-
-TRIAL_SUFFIXES = (".c3d", ".trc", ".csv")
-"""The file types a labelled trial can be read from."""
+__all__ = ["STATIC_TRAVEL_M", "LabelledTrial", "load_labelled_trial", "reference_frame", "template_from_trial"]
 
 STATIC_TRAVEL_M = 0.05
 """Below this :attr:`LabelledTrial.travel_m` a trial is static: the shared data's two standing trials
@@ -103,17 +99,9 @@ def load_labelled_trial(path: str | os.PathLike, names: Sequence[str] | None = N
     the readers refuse, fewer than three of ``names`` in it, or fewer than two frames that see
     three of them (rigidity is learned from motion).
     """
-    from mocap.exports import read_c3d, read_csv, read_trc
+    from mocap.exports import read_capture
 
-    path = Path(path)
-    suffix = path.suffix.lower()
-    readers = {".c3d": read_c3d, ".trc": read_trc, ".csv": read_csv}
-    if suffix not in readers:
-        raise InputFileError(path, f"file type {path.suffix or '(none)'!r}",
-                             f"give the labelled trial as one of {', '.join(TRIAL_SUFFIXES)}")
-    if not path.is_file():
-        raise InputFileError(path, "is a folder" if path.is_dir() else "no such file", "give the path of a labelled trial file")
-    traj = readers[suffix](path)
+    traj = read_capture(path, what="labelled trial")
     names = list(traj.labels) if names is None else list(names)
     shared = [n for n in names if n in traj.labels]
     if len(shared) < 3:

@@ -17,23 +17,23 @@ from pathlib import Path
 import numpy as np
 
 from eval.marker_metrics import label_swaps, marker_errors_m
-from mocap.exports import read_c3d, read_csv, read_trc
+from mocap.errors import InputFileError
+from simbench.pipelines.exchange.results import read_results
 from simbench.stage.ground_truth import load_ground_truth
-
-READERS = {".c3d": read_c3d, ".trc": read_trc, ".csv": read_csv}
 
 
 def score(run_dir: Path, capture: Path) -> str:
     """One line of figures for ``capture`` against ``run_dir``'s ground truth."""
     gt = load_ground_truth(run_dir)
-    traj = READERS[capture.suffix.lower()](capture)
-    if len(traj.xyz) != gt.n_frames:
-        raise ValueError(f"{capture}: {len(traj.xyz)} frames against the {gt.n_frames} of {run_dir}'s ground truth; "
-                         "score a capture of that folder's videos")
+    traj = read_results(capture)  # by suffix (mocap.exports.read_capture)
+    if len(traj.xyz) != gt.n_frames:  # one row per frame of the folder's videos: another take is refused, not matched by time
+        raise InputFileError(capture, f"{len(traj.xyz)} frames against the {gt.n_frames} of {run_dir}'s ground truth",
+                             "score a capture of that folder's videos")
+    xyz = traj.xyz
     est = np.full_like(gt.markers_3d, np.nan)
     for m, name in enumerate(gt.marker_names):
         if name in traj.labels:
-            est[:, m] = traj.xyz[:, list(traj.labels).index(name)]
+            est[:, m] = xyz[:, list(traj.labels).index(name)]
     err_mm = marker_errors_m(est, gt.markers_3d) * 1e3
     seen = np.isfinite(err_mm)
     rmse = float(np.sqrt(np.mean(err_mm[seen] ** 2))) if seen.any() else float("nan")
@@ -48,13 +48,9 @@ def main(argv: list[str]) -> int:
         return 2
     run_dir = Path(argv[0])
     for name in argv[1:]:
-        path = Path(name)
-        if path.suffix.lower() not in READERS:
-            print(f"error: {path}: file type {path.suffix!r}; give a .c3d, .trc or .csv", file=sys.stderr)
-            return 2
         try:
-            print(score(run_dir, path))
-        except ValueError as exc:
+            print(score(run_dir, Path(name)))
+        except InputFileError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     return 0

@@ -39,6 +39,7 @@ public names from here.
 """
 
 from mocap.exports._common import opensim_to_world, pose2sim_to_world, world_to_opensim, world_to_pose2sim
+from mocap.exports.any_capture import CAPTURE_SUFFIXES, read_capture
 from mocap.exports.bvh import write_bvh
 from mocap.exports.c3d import read_c3d, write_c3d
 from mocap.exports.capture_files import CaptureTrajectories
@@ -46,6 +47,8 @@ from mocap.exports.csv_table import read_csv, write_csv
 from mocap.exports.trc import read_trc, write_trc
 
 __all__ = [
+    "CAPTURE_SUFFIXES",
+    "read_capture",
     "CaptureTrajectories",
     "write_c3d",
     "read_c3d",

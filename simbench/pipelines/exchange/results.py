@@ -17,27 +17,20 @@ import numpy as np
 
 from eval import marker_metrics
 from mocap.errors import InputFileError
-from mocap.exports import read_c3d, read_csv, read_trc
+from mocap.exports import CAPTURE_SUFFIXES, read_capture
 from mocap.types import Trajectories
 
 __all__ = ["RESULT_SUFFIXES", "read_results", "score_results", "align_to_frames"]
 
-RESULT_SUFFIXES = (".c3d", ".trc", ".csv")
+RESULT_SUFFIXES = CAPTURE_SUFFIXES
 
 
 def read_results(path: str | os.PathLike, trc_axes: str = "opensim") -> Trajectories:
-    """A system's labelled 3D markers in the world frame (Z up, metres), by extension."""
+    """A system's labelled 3D markers in the world frame (Z up, metres), by extension (:func:`mocap.exports.read_capture`)."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if not path.is_file():
+    if not path.is_file() and path.suffix.lower() in RESULT_SUFFIXES:
         raise InputFileError(path, "file not found", f"the system must write its 3D result there ({', '.join(RESULT_SUFFIXES)})")
-    if suffix == ".c3d":
-        return read_c3d(path)
-    if suffix == ".trc":
-        return read_trc(path, axes=trc_axes)
-    if suffix == ".csv":
-        return read_csv(path)
-    raise InputFileError(path, f"unknown result type {suffix!r}", f"write the 3D result as one of {', '.join(RESULT_SUFFIXES)}")
+    return read_capture(path, trc_axes=trc_axes, what="3D result")
 
 
 def align_to_frames(traj: Trajectories, times: np.ndarray, path: Path | str = "") -> np.ndarray:
