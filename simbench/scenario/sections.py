@@ -442,9 +442,13 @@ class ShirtPipelineConfig(FrozenModel):
         default_factory=dict, description="the shirt tracker's settings for both methods, fields of "
         "mocap.shirt.settings.ShirtPipelineParams (an ablation: `--set shirt_pipeline.settings.pose_prior=false`)")
 
-    @field_validator("settings")
+    # before the value types: a string (`--set ...prior_c=abc`, or `=False`, which is not TOML) failed the
+    # union of bool, int and float first, in a message naming a member ("settings.prior_c.bool") and not the type
+    @field_validator("settings", mode="before")
     @classmethod
-    def _settings_are_tracker_settings(cls, settings: dict) -> dict:
+    def _settings_are_tracker_settings(cls, settings: object) -> object:
+        if not isinstance(settings, dict):
+            return settings  # the type check names it
         owned = {"keep_classification": "simbench keeps the classification of its runs",
                  "hand_constraints": "use shirt_pipeline.hands"}
         for name, why in owned.items():
