@@ -290,11 +290,28 @@ def _bad_geometry(kind: str, data: dict, leaves: dict, rng: np.random.Generator)
 
 
 def _bad_set_option(kind: str, data: dict, leaves: dict, rng: np.random.Generator) -> Case | None:
-    """The file is good; the command line's override is not."""
+    """The file is good; the command line's override is not: its value, or its path."""
+    if rng.random() < 0.4:
+        return _bad_set_path(kind, data, leaves, rng)
     path = _pick(rng, [p for p, v in leaves.items() if isinstance(v, (int, float)) and not isinstance(v, bool)])
     text, value = [("nan", math.nan), ("inf", math.inf), ("-1e300", -1e300), ("true", True), ('"x"', "x"),
                    ("[1, 2]", None)][rng.integers(6)]
     return Case(f"--set {path}={text}", kind, (path,), _toml(data), args=("--set", f"{path}={text}"), value=value)
+
+
+def _bad_set_path(kind: str, data: dict, leaves: dict, rng: np.random.Generator) -> Case | None:
+    """An override path that leads to no field: a list index out of range or not a number, or a field inside a value."""
+    indexed = [p for p in leaves if any(part.isdigit() for part in p.split("."))]
+    how = int(rng.integers(3))
+    if how < 2 and indexed:
+        parts = _pick(rng, indexed).split(".")
+        i = next(j for j, part in enumerate(parts) if part.isdigit())
+        parts[i] = "99" if how == 0 else "first"
+        bad, field = ".".join(parts), ".".join(parts[: i + 1])
+    else:
+        path = _pick(rng, [p for p, v in leaves.items() if isinstance(v, (int, float, str)) and not isinstance(v, bool)])
+        bad = field = f"{path}.inner"
+    return Case(f"--set {bad}=1", kind, (field,), _toml(data), args=("--set", f"{bad}=1"), value=1)
 
 
 _MUTATIONS: dict[str, Callable[[str, dict, dict, np.random.Generator], Case | None]] = {

@@ -138,6 +138,41 @@ def test_schema_refusals_name_the_field(overrides, field, words) -> None:
     assert err.value.field == field and words in str(err.value), str(err.value)
 
 
+@pytest.mark.parametrize("name, overrides, field, words", [
+    ("shirt_office", {"cameras.5.hfov_deg": 50}, "cameras.5", "cameras has 2 entries (indices 0-1)"),
+    ("shirt_office", {"cameras.x.hfov_deg": 50}, "cameras.x", "cameras is a list: index it with a number (indices 0-1)"),
+    ("shirt_office", {"seed.x": 1}, "seed.x", "seed is a value (10), not a table: set seed itself"),
+    ("quickstart", {"cameras.0.hfov_deg": 50}, "cameras.0", "no cameras list to index; write [[cameras]] tables"),
+    ("quickstart", {"lighting.lights.0.intensity": 2}, "lighting.lights.0", "write [[lighting.lights]] tables"),
+])
+def test_override_paths_that_lead_nowhere_name_the_part_that_fails(name, overrides, field, words) -> None:
+    """A list index out of range or not a number, or a field inside a value, was a traceback (IndexError,
+    ValueError, TypeError) from `--set`, or 'Input should be a valid tuple' where the scenario has no such list."""
+    from simbench.errors import ScenarioError
+    from simbench.scenario import load_scenario
+
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(fz.SCENARIOS / f"{name}.toml", overrides=overrides)
+    assert err.value.field == field and words in str(err.value), str(err.value)
+    assert err.value.value == next(iter(overrides.values()))
+
+
+def test_overrides_index_a_scenario_s_lists_from_the_file_and_from_a_loaded_scenario() -> None:
+    from simbench.errors import ScenarioError
+    from simbench.scenario import load_scenario
+    from simbench.sweeps.sweep_file import _with
+
+    sc = load_scenario(fz.SCENARIOS / "shirt_office.toml", overrides={"cameras.1.hfov_deg": 50, "cameras.0.position.2": 1.7})
+    assert sc.cameras[1].hfov_deg == 50 and sc.cameras[0].position[2] == 1.7
+    # a loaded scenario's dump holds its lists as tuples (a sweep's factors go this way)
+    again = sc.with_overrides({"cameras.0.hfov_deg": 40, "cameras.0.position.2": 1.6})
+    assert again.cameras[0].hfov_deg == 40 and again.cameras[0].position[2] == 1.6 and again.cameras[1].hfov_deg == 50
+    with pytest.raises(ScenarioError) as err:
+        _with(sc, {"cameras.2.hfov_deg": 40}, fz.SCENARIOS / "sweep.toml", "factors[0] (hfov = 40)")
+    assert err.value.field == "factors[0] (hfov = 40) -> scenario field 'cameras.2'" and err.value.value == 40
+    assert "cameras has 2 entries" in str(err.value)
+
+
 @pytest.mark.parametrize("line, field", [
     ('samples = true', "samples"),
     ('seed = nan', "seed"),

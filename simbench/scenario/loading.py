@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from mocap.calibration_formats import load_calibration
 from mocap.errors import MocapInputError
 from simbench.errors import ScenarioError, SimbenchInputError
-from simbench.scenario.model import Scenario, _set_dotted
+from simbench.scenario.model import OverridePathError, Scenario, _set_dotted
 
 
 def _format_loc(loc: tuple) -> str:
@@ -95,7 +95,10 @@ def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) 
     data.setdefault("name", path.stem)
     data["source_dir"] = str(path.parent.resolve())
     for dotted, value in (overrides or {}).items():
-        _set_dotted(data, dotted, value)
+        try:
+            _set_dotted(data, dotted, value)
+        except OverridePathError as exc:
+            raise ScenarioError(path, exc.field, value, exc.reason) from None
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:

@@ -144,17 +144,55 @@ class Scenario(FrozenModel):
         return Scenario.model_validate(data)
 
 
+class OverridePathError(ValueError):
+    """A dotted override path that does not lead to a field: ``field`` is the part of it that fails, ``value`` the
+    value it was to set."""
+
+    def __init__(self, field: str, reason: str, value: object = None) -> None:
+        self.field, self.reason, self.value = field, reason, value
+        super().__init__(f"{field}: {reason}")
+
+
+def _list_index(node: list, key: str, where: str) -> int:
+    """``key`` as an index of the list ``node`` named ``where``; :class:`OverridePathError` if it is none."""
+    n = len(node)
+    span = f"0-{n - 1}" if n else "none: the list is empty"
+    if not key.isdigit():
+        raise OverridePathError(f"{where}.{key}", f"{where} is a list: index it with a number (indices {span})")
+    if int(key) >= n:
+        raise OverridePathError(f"{where}.{key}", f"{where} has {n} entries (indices {span})")
+    return int(key)
+
+
 def _set_dotted(data: dict, dotted: str, value: object) -> None:
-    keys = dotted.split(".")
-    node = data
-    for k in keys[:-1]:
-        if isinstance(node, (list, tuple)):
-            node = node[int(k)]
-            continue
-        if k not in node or node[k] is None:
+    """Set ``data``'s field at ``dotted`` (``"sensor.exposure_ms"``, ``"cameras.0.hfov_deg"``) to ``value``, making
+    the tables on the way; :class:`OverridePathError` where the path indexes a list wrongly, goes on through a value,
+    or indexes a list the scenario does not have (a table is made only for a name)."""
+    try:
+        _walk_and_set(data, dotted.split("."), value)
+    except OverridePathError as exc:
+        exc.value = value
+        raise
+
+
+def _walk_and_set(data: dict, keys: list[str], value: object) -> None:
+    node, parent, where = data, None, ""
+    for depth, k in enumerate(keys):
+        last = depth == len(keys) - 1
+        here = f"{where}.{k}" if where else k
+        if isinstance(node, tuple):  # a model's dump (Scenario.with_overrides): lists as tuples
+            node = list(node)
+            parent[keys[depth - 1] if isinstance(parent, dict) else int(keys[depth - 1])] = node
+        if isinstance(node, list):
+            k = _list_index(node, k, where)
+        elif not isinstance(node, dict):
+            raise OverridePathError(here, f"{where} is a value ({node!r}), not a table: set {where} itself")
+        if last:
+            node[k] = value
+            return
+        if isinstance(node, dict) and (k not in node or node[k] is None):
+            if keys[depth + 1].isdigit():
+                raise OverridePathError(f"{here}.{keys[depth + 1]}", f"this scenario has no {here} list to index; "
+                                        f"write [[{here}]] tables in the scenario file")
             node[k] = {}
-        node = node[k]
-    if isinstance(node, list):
-        node[int(keys[-1])] = value
-    else:
-        node[keys[-1]] = value
+        parent, node, where = node, node[k], here

@@ -50,6 +50,7 @@ from pydantic import Field, StrictBool, ValidationError, field_validator, model_
 
 from simbench.errors import ScenarioError
 from simbench.scenario import FrozenModel, Int, Real, Scenario, load_scenario, read_toml_file, validation_error_to_scenario_error
+from simbench.scenario.model import OverridePathError
 
 __all__ = ["flatten_dotted", "Factor", "display_value", "SweepSpec", "RunSpec", "Sweep", "run_id_for", "load_sweep", "expand"]
 
@@ -224,6 +225,8 @@ def _with(base: Scenario, overrides: dict[str, Any], path: Path, where: str) -> 
     except ValidationError as exc:
         err = validation_error_to_scenario_error(path, exc)
         raise ScenarioError(path, f"{where} -> scenario field '{err.field}'", err.value, err.allowed) from None
+    except OverridePathError as exc:
+        raise ScenarioError(path, f"{where} -> scenario field '{exc.field}'", exc.value, exc.reason) from None
 
 
 def expand(spec: SweepSpec, path: Path) -> tuple[tuple[RunSpec, ...], int]:
