@@ -435,9 +435,10 @@ def test_rest_trial_is_the_files_samples_outside_the_window(tmp_path):
     take = build_stage(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nstart_s = 0.5', "fps = 100.0\nduration_s = 0.5",
                                  name="take")).capture_reference()
     assert len(take.times) == 50 and take.times.max() < 0.5 + 1e-9  # scenario time, the window's frames
-    with pytest.raises(ScenarioError, match=r"motion.subject_trial.*has 1 sample with 3 markers or more outside the window 0-1.69 s"):
+    with pytest.raises(ScenarioError, match=r"motion.subject_trial.*has 1 sample with 3 markers or more outside the window 0-1.69 s") as err:
         load_capture_clip(_scenario(tmp_path, f'c3d = "{QUALISYS}"\nsubject_trial = "rest"', "fps = 100.0\nduration_s = 1.69",
                                     name="all"))
+    assert err.value.path == tmp_path / "all.toml"  # the scenario file (it named its folder)
 
 
 def test_subject_trial_at_its_default_keeps_the_scenario_hash():

@@ -183,8 +183,9 @@ def test_loader_hint_names_the_scenario_field_that_fixes_it(skull_scenario):
 
 
 def test_name_map_is_validated(skull_scenario):
-    with pytest.raises(ScenarioError, match=r"motion\.name_map\.head.*'Skul'.*no such joint.*Skull"):
+    with pytest.raises(ScenarioError, match=r"motion\.name_map\.head.*'Skul'.*no such joint.*Skull") as err:
         _motion(skull_scenario, **{"motion.name_map": {"head": "Skul"}})
+    assert err.value.path == skull_scenario  # the file, not its folder (errors found after loading named the folder)
     with pytest.raises(ScenarioError, match=r"motion\.name_map.*\['skull'\] are not humanoid bodies"):
         load_scenario(skull_scenario, overrides={"motion.name_map": {"skull": "Skull"}})
     with pytest.raises(ScenarioError, match=r"name_map applies to a BVH clip only"):

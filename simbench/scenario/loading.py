@@ -94,6 +94,7 @@ def load_scenario(path: str | Path, overrides: dict[str, object] | None = None) 
     data = read_toml_file(path, "scenarios live in scenarios/*.toml")
     data.setdefault("name", path.stem)
     data["source_dir"] = str(path.parent.resolve())
+    data["source_file"] = str(path)
     for dotted, value in (overrides or {}).items():
         try:
             _set_dotted(data, dotted, value)

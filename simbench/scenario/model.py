@@ -37,6 +37,7 @@ class Scenario(FrozenModel):
     calibration_scene: CalibrationSceneConfig | None = None
     pipeline: PipelineConfig | None = Field(None, description="[pipeline] kind = 'command': score a user's system instead")
     source_dir: str = Field("", exclude=True, description="directory of the scenario file (relative paths)")
+    source_file: str = Field("", exclude=True, description="the scenario file (what errors found after loading name)")
 
     @model_validator(mode="after")
     def _checks(self):
@@ -120,6 +121,11 @@ class Scenario(FrozenModel):
     def n_frames(self) -> int:
         return int(round(self.duration_s * self.fps))
 
+    @property
+    def origin(self) -> str:
+        """What an error found after loading names as the scenario's file: the file, else its folder, else the name."""
+        return self.source_file or self.source_dir or self.name
+
     def resolve_path(self, p: str) -> Path:
         path = Path(p)
         return path if path.is_absolute() else Path(self.source_dir or ".") / path
@@ -140,7 +146,7 @@ class Scenario(FrozenModel):
         data = self.model_dump(mode="python")
         for dotted, value in overrides.items():
             _set_dotted(data, dotted, value)
-        data["source_dir"] = self.source_dir
+        data["source_dir"], data["source_file"] = self.source_dir, self.source_file
         return Scenario.model_validate(data)
 
 

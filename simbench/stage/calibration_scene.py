@@ -557,7 +557,7 @@ def render_calibration_scene(scenario: Scenario, rng: np.random.Generator,
         Called with 1 after every rendered view / wand frame.
     """
     cfg = scenario.calibration_scene
-    path = scenario.source_dir or scenario.name
+    path = scenario.origin
     if cfg is None:
         raise ScenarioError(path, "calibration_scene", None, "add a [calibration_scene] section to render calibration views")
     cameras = cameras if cameras is not None else cameras_from_scenario(scenario)

@@ -86,11 +86,11 @@ def _read(scenario: Scenario) -> tuple[CaptureTrajectories, str, str]:
         else:
             axes = {"auto": "auto", "y": "opensim", "z": "world"}.get(m.up_axis)
             if axes is None:
-                raise ScenarioError(scenario.source_dir or scenario.name, "motion.up_axis", m.up_axis,
+                raise ScenarioError(scenario.origin, "motion.up_axis", m.up_axis,
                                     "a TRC file's up axis is 'auto', 'y' or 'z'")
             traj = read_trc(path, axes=axes)
     except MocapInputError as exc:
-        raise ScenarioError(scenario.source_dir or scenario.name, f"motion.{key}", given, f"cannot use it: {exc}") from None
+        raise ScenarioError(scenario.origin, f"motion.{key}", given, f"cannot use it: {exc}") from None
     return traj, key, given
 
 
@@ -104,7 +104,7 @@ def load_capture_clip(scenario: Scenario) -> CaptureClip:
         the window does not fit in the capture, or no marker has a sample in it.
     """
     m = scenario.motion
-    where = scenario.source_dir or scenario.name
+    where = scenario.origin
     traj, key, given = _read(scenario)
     labels = list(traj.labels)
     if m.labels is not None:
@@ -163,7 +163,7 @@ def _check_rest_trial(clip: CaptureClip, scenario: Scenario, given: str, end_s: 
     out = clip.outside_window(scenario.duration_s)
     usable = int((np.isfinite(clip.source_xyz[out]).all(axis=2).sum(axis=1) >= 3).sum())
     if usable < 2:
-        raise ScenarioError(scenario.source_dir or scenario.name, "motion.subject_trial", "rest",
+        raise ScenarioError(scenario.origin, "motion.subject_trial", "rest",
                             f"{given} has {usable} sample{'' if usable == 1 else 's'} with 3 markers or more outside the "
                             f"window {scenario.motion.start_s:g}-{end_s:g} s; use 'take', or shorten or move the window")
 
@@ -220,7 +220,7 @@ class CaptureStage(Stage):
 
     @classmethod
     def from_capture_scenario(cls, scenario: Scenario) -> "CaptureStage":
-        where = scenario.source_dir or scenario.name
+        where = scenario.origin
         if scenario.subject.shirt:
             raise ScenarioError(where, "subject.shirt", True, "a capture scenario renders the file's markers only; remove shirt")
         params = body_params(scenario)

@@ -85,7 +85,7 @@ def make_scenario_motion(scenario: Scenario, params: BodyParams, rng: np.random.
 def _bvh_motion(scenario: Scenario, params: BodyParams, needed_s: float) -> Motion:
     """Load and retarget the scenario's BVH clip; check that it covers ``needed_s`` seconds."""
     m = scenario.motion
-    where = scenario.source_dir or "<scenario>"
+    where = scenario.origin
     path = scenario.resolve_path(m.bvh)
     bvh = load_bvh(path)
     for body, joint in m.name_map.items():
