@@ -361,7 +361,7 @@ class Calibration:
         if not path.is_file():
             raise CalibrationFileError(path, "", "file not found", "pass the path of a calibration .toml")
         try:
-            doc = tomllib.loads(path.read_bytes().decode("utf-8"))
+            doc = tomllib.loads(path.read_bytes().decode("utf-8-sig"))  # a byte-order mark first is not TOML
         except UnicodeDecodeError as exc:
             raise CalibrationFileError(path, "", f"byte {exc.start} is not UTF-8", "save the file as UTF-8 text") from None
         except tomllib.TOMLDecodeError as exc:

@@ -281,10 +281,11 @@ class SubjectModel:
         if path.suffix.lower() in (".xml", ".mjcf"):
             return cls.from_mjcf(path)
         try:
-            with path.open("rb") as f:
-                doc = tomllib.load(f)
+            doc = tomllib.loads(path.read_bytes().decode("utf-8-sig"))  # a byte-order mark first is not TOML
         except OSError as exc:
             raise InputFileError(path, f"cannot read the subject file ({exc.strerror})", "give the path of a subject TOML or humanoid MJCF") from None
+        except UnicodeDecodeError as exc:
+            raise InputFileError(path, f"byte {exc.start} is not UTF-8", "save the subject file as UTF-8 text") from None
         except tomllib.TOMLDecodeError as exc:
             raise InputFileError(path, f"not valid TOML ({exc})", "fix the TOML syntax") from None
         subject = doc.get("subject")

@@ -53,7 +53,9 @@ def read_toml_file(path: Path, where_they_live: str) -> dict:
     if not path.is_file():
         raise ScenarioError(path, "<file>", str(path), f"file not found; {where_they_live}")
     try:
-        text = path.read_bytes().decode("utf-8")
+        # utf-8-sig: a byte-order mark (what Windows editors put first) is not TOML, and tomllib refused the
+        # file at "line 1, column 1" without saying why
+        text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         line_no = exc.object.count(b"\n", 0, exc.start) + 1
         line = exc.object.splitlines()[line_no - 1].decode("utf-8", "replace")  # shown with U+FFFD where it is not UTF-8
