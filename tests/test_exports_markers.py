@@ -178,6 +178,25 @@ def test_trc_errors(tmp_path, traj):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.trc", "keep.trc"]
 
 
+def test_trc_in_the_windows_code_page_or_with_a_byte_order_mark_reads_its_labels(traj, tmp_path):
+    """A TRC declares no encoding; Windows capture software writes cp1252, some editors a UTF-8 byte-order mark.
+    Read as the locale's text, a cp1252 accent was "not a text file"."""
+    named = Trajectories(["genou_gauche_\xe9", "Kn\xf6chel"] + traj.labels[2:], traj.xyz, traj.times, traj.filled)
+    utf8 = write_trc(tmp_path / "utf8.trc", named)
+    text = utf8.read_text(encoding="utf-8")
+    (tmp_path / "cp1252.trc").write_bytes(text.encode("cp1252"))
+    (tmp_path / "bom.trc").write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    want = read_trc(utf8)
+    assert want.labels[:2] == ["genou_gauche_\xe9", "Kn\xf6chel"]
+    for name in ("cp1252.trc", "bom.trc"):
+        got = read_trc(tmp_path / name)
+        assert got.labels == want.labels
+        np.testing.assert_array_equal(got.xyz, want.xyz)
+    (tmp_path / "binary.trc").write_bytes(b"PathFileType\t4\x00\x01\x02")
+    with pytest.raises(InputFileError, match="not a text file"):
+        read_trc(tmp_path / "binary.trc")
+
+
 # ------------------------------------------------------------------------------ CSV
 def test_csv_columns_and_round_trip(traj, tmp_path):
     path = write_csv(tmp_path / "take.csv", traj)

@@ -137,11 +137,21 @@ def read_trc(
 def _trc_lines(path: Path) -> list[str]:
     """The TRC file's lines (at least 5, the first ``PathFileType ...``)."""
     try:
-        lines = path.read_text().splitlines()
+        raw = path.read_bytes()
     except OSError as exc:
         raise InputFileError(path, f"cannot read ({exc.strerror})", "give the path of a .trc file") from None
-    except UnicodeDecodeError:
+    if b"\0" in raw:
         raise InputFileError(path, "not a text file", "give a TRC (tab-separated text) file") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        # A TRC declares no encoding, and Windows capture software writes its ANSI code page: a marker named
+        # "genou_gauche_\xe9" in cp1252 was "not a text file". Latin-1 decodes every byte, cp1252's five unused too.
+        try:
+            text = raw.decode("cp1252")
+        except UnicodeDecodeError:
+            text = raw.decode("latin-1")
+    lines = text.splitlines()
     if len(lines) < 5 or not lines[0].startswith("PathFileType"):
         raise InputFileError(path, "first line does not start with PathFileType", "give a TRC file (OpenSim / Motion Analysis format)", field="PathFileType")
     return lines
