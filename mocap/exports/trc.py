@@ -146,7 +146,7 @@ def _trc_lines(path: Path) -> list[str]:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         # A TRC declares no encoding, and Windows capture software writes its ANSI code page: a marker named
-        # "genou_gauche_\xe9" in cp1252 was "not a text file". Latin-1 decodes every byte, cp1252's five unused too.
+        # "genou_gauche_\xe9" in cp1252 was "not a text file". cp1252 leaves five bytes undefined; Latin-1 takes every byte.
         try:
             text = raw.decode("cp1252")
         except UnicodeDecodeError:
