@@ -1,5 +1,5 @@
 """Files users edit may start with a UTF-8 byte-order mark (Windows editors write one): a scenario, a sweep, a
-subject and an anipose/Pose2Sim calibration TOML load as without it. tomllib refuses the mark, at "line 1, column
+subject and an anipose/Pose2Sim calibration TOML, and a BVH clip, load as without it. tomllib refuses the mark, at "line 1, column
 1" without saying why; the subject file's reader also let a non-UTF-8 byte out as a traceback."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from mocap.errors import InputFileError
 from mocap.subject import SubjectModel
 from simbench.render.camera import VirtualCamera
 from simbench.scenario import load_scenario
+from simbench.scenes.bvh_file import load_bvh
 from simbench.scenes.humanoid import BodyParams, humanoid_mjcf
 from simbench.sweeps.sweep_file import load_sweep
 
@@ -60,3 +61,11 @@ def test_a_subject_toml_with_a_byte_order_mark_loads_and_a_non_utf8_one_is_refus
     bad.write_bytes(toml.read_bytes().replace(b"[subject]", b"# caf\xe9\n[subject]"))
     with pytest.raises(InputFileError, match=r"byte \d+ is not UTF-8"):
         SubjectModel.load(bad)
+
+
+def test_a_bvh_clip_with_a_byte_order_mark_loads_as_without(tmp_path):
+    clip = SCENARIOS / "data" / "bvh" / "01_01_frames120-900.bvh"
+    plain, marked = load_bvh(clip), load_bvh(_with_bom(clip, tmp_path / "marked.bvh"))
+    assert marked.joint_names == plain.joint_names
+    np.testing.assert_array_equal(marked.offsets, plain.offsets)
+    np.testing.assert_array_equal(marked.frames, plain.frames)

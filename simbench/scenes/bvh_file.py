@@ -372,7 +372,8 @@ def load_bvh(path: str | Path) -> BvhClip:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        # utf-8-sig: a byte-order mark first was "does not start with HIERARCHY (found 'HIERARCHY')", the mark unseen
+        text = path.read_text(encoding="utf-8-sig", errors="replace")
     except OSError as exc:
         raise InputFileError(path, f"cannot read the file ({exc.strerror})", "give the path of an existing BVH file") from None
     lines = text.splitlines()  # handles \n, \r\n, lone \r and mixtures of them
