@@ -23,7 +23,8 @@ import numba
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from mocap.errors import InputFileError, MocapInputError
+from mocap.errors import MocapInputError
+from mocap.npz_files import read_npz
 from mocap.srgb import SRGB_TO_LINEAR as _SRGB_TO_LINEAR_F64
 
 __all__ = [
@@ -130,14 +131,9 @@ class ColourModel:
 
     @classmethod
     def load(cls, path: str | Path) -> "ColourModel":
-        path = Path(path)
-        if not path.is_file():
-            raise InputFileError(path, "colour model not found", "train one (simbench does it for its runs) or give the right path")
-        with np.load(path, allow_pickle=False) as z:
-            try:
-                return cls(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
-            except KeyError as exc:
-                raise InputFileError(path, f"missing array {exc.args[0]!r}", "give a file written by ColourModel.save") from None
+        z = read_npz(path, ("means", "covariances", "names"), "colour model",
+                     "give the colour model a run wrote (shirt/colour_model.npz; ColourModel.save)")
+        return cls(z["means"], z["covariances"], tuple(str(s) for s in z["names"]))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -37,7 +37,8 @@ import numpy as np
 import pinocchio as pin
 
 from mocap.calibration import Camera
-from mocap.errors import InputFileError, MocapInputError
+from mocap.errors import MocapInputError
+from mocap.npz_files import read_npz
 from mocap.shirt.ik_kernels import (anchor_jacobians, huber_rows, place_anchors, project_anchors, projection_jacobians, silhouette_field,
                                      whitened_errors)
 from mocap.shirt.kinematics import ShirtKinematics, UPPER_NV
@@ -210,11 +211,9 @@ class IKPriors:
 
     @classmethod
     def load(cls, path: str | Path) -> "IKPriors":
-        path = Path(path)
-        if not path.is_file():
-            raise InputFileError(path, "IK priors not found", "train them on a ground-truth sequence (simbench does it for its runs)")
-        with np.load(path) as z:
-            return cls(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
+        z = read_npz(path, ("centroid_cov", "blend_std", "motion_std", "n_frames"), "IK priors file",
+                     "give the IK priors a run wrote (shirt/ik_priors.npz; IKPriors.save)")
+        return cls(z["centroid_cov"], z["blend_std"], z["motion_std"], int(z["n_frames"]))
 
 
 def train_priors(patch: np.ndarray, residual: np.ndarray, blend_error: np.ndarray, motion: np.ndarray, n_patches: int,
