@@ -291,7 +291,11 @@ class Calibration:
         if path.stat().st_size == 0:
             raise CalibrationFileError(path, "", "the file is empty", "pass a calibration written by `mocap calibrate` or OpenCV")
         try:
-            fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+            raw = path.read_bytes()
+            if raw.startswith(b"\xef\xbb\xbf"):  # a UTF-8 byte-order mark (Windows editors): FileStorage refuses it
+                fs = cv2.FileStorage(raw[3:].decode("utf-8", "replace"), cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+            else:
+                fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         except (cv2.error, SystemError) as exc:  # malformed YAML (OpenCV 5 may wrap its error in a SystemError)
             first = str(getattr(exc, "err", "") or "").strip().splitlines()[:1]
             why = f" ({first[0]})" if first else ""

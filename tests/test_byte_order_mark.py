@@ -1,6 +1,7 @@
 """Files users edit may start with a UTF-8 byte-order mark (Windows editors write one): a scenario, a sweep, a
-subject and an anipose/Pose2Sim calibration TOML, and a BVH clip, load as without it. tomllib refuses the mark, at "line 1, column
-1" without saying why; the subject file's reader also let a non-UTF-8 byte out as a traceback."""
+subject and an anipose/Pose2Sim calibration TOML, an OpenCV calibration YAML and a BVH clip load as without it.
+tomllib refuses the mark at "line 1, column 1" without saying why, OpenCV's FileStorage refuses it, and the BVH
+reader saw "HIERARCHY" with the mark unseen; the subject file's reader also let a non-UTF-8 byte out as a traceback."""
 
 from __future__ import annotations
 
@@ -40,15 +41,17 @@ def test_a_scenario_and_a_sweep_with_a_byte_order_mark_load_as_without(tmp_path)
     assert [r.run_id for r in load_sweep(marked_sweep).runs] == [r.run_id for r in load_sweep(sweep).runs]
 
 
-def test_a_calibration_toml_with_a_byte_order_mark_loads_as_without(tmp_path):
+def test_a_calibration_toml_or_opencv_yaml_with_a_byte_order_mark_loads_as_without(tmp_path):
     rig = load_scenario(SCENARIOS / "quickstart.toml").rig
     cal = Calibration(tuple(VirtualCamera.from_config(c).calibration_camera() for c in rig.camera_configs()))
     cal.save_toml(tmp_path / "calibration.toml")
-    back = Calibration.load_toml(_with_bom(tmp_path / "calibration.toml", tmp_path / "marked.toml"))
-    assert [c.name for c in back.cameras] == [c.name for c in cal.cameras]
-    for a, b in zip(back.cameras, cal.cameras):
-        np.testing.assert_allclose(a.K, b.K)
-        np.testing.assert_allclose(a.R, b.R, atol=1e-12)
+    cal.save_opencv_yaml(tmp_path / "calibration.yml")
+    for back in (Calibration.load_toml(_with_bom(tmp_path / "calibration.toml", tmp_path / "marked.toml")),
+                 Calibration.load_opencv_yaml(_with_bom(tmp_path / "calibration.yml", tmp_path / "marked.yml"))):
+        assert [c.name for c in back.cameras] == [c.name for c in cal.cameras]
+        for a, b in zip(back.cameras, cal.cameras):
+            np.testing.assert_allclose(a.K, b.K)
+            np.testing.assert_allclose(a.R, b.R, atol=1e-12)
 
 
 def test_a_subject_toml_with_a_byte_order_mark_loads_and_a_non_utf8_one_is_refused(tmp_path):
