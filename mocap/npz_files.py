@@ -1,4 +1,5 @@
-"""Reading the capture product's own ``.npz`` files (a colour model, IK priors), with one error for a wrong file.
+"""Reading the capture product's own ``.npz`` files (a colour model, IK priors, a pose database), with one error for a
+wrong file.
 
 Why one helper: each reader opened its archive and indexed the arrays itself, so a wrong file given for one of them
 (``mocap shirt --priors colour_model.npz``, or a PNG) came out as numpy's ``KeyError`` or its pickle ``ValueError``,
@@ -32,9 +33,10 @@ def read_npz(path: str | os.PathLike, names: tuple[str, ...], what: str, fix: st
     a_what = ("an " if what[:1].lower() in "aeiou" else "a ") + what
     if not path.is_file():
         raise InputFileError(path, f"{what} not found", fix)
-    if not zipfile.is_zipfile(path):  # numpy would try it as a pickle, and say so
-        raise InputFileError(path, f"not {a_what}: not a .npz archive", fix)
     try:
+        with path.open("rb") as f:
+            if f.read(4) != b"PK\x03\x04":  # not a zip archive at all (numpy would try it as a pickle, and say so)
+                raise InputFileError(path, f"not {a_what}: not a .npz archive", fix)
         with np.load(path, allow_pickle=False) as z:
             missing = [n for n in names if n not in z.files]
             if missing:

@@ -1,7 +1,7 @@
-"""The colour model and IK priors files of `mocap shirt` (``--colour-model``, ``--priors``): each reads back what
-it saved, and a wrong file given for one (the other's, a picture, a truncated archive) is an InputFileError
-naming the file. They were numpy's KeyError and pickle ValueError, tracebacks, or "missing array 'means is not a
-file in the archive'"."""
+"""The colour model, IK priors and pose database files of `mocap shirt` (``--colour-model``, ``--priors``,
+``--database``): the first two read back what they saved, and a wrong file given for one (another's, a picture, a
+truncated archive) is an InputFileError naming the file. They were numpy's KeyError and pickle ValueError
+tracebacks, or "missing array 'means is not a file in the archive'"."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from mocap.errors import InputFileError
 from mocap.shirt.colour_model import ColourModel
 from mocap.shirt.ik import IKPriors
 from mocap.shirt.kinematics import UPPER_NV
+from mocap.shirt.pose_database import PoseDatabase
 
 
 @pytest.fixture()
@@ -49,6 +50,8 @@ def test_a_wrong_file_is_one_error_naming_it(files):
         (IKPriors.load, d / "picture.png", "not an IK priors file: not a .npz archive"),
         (ColourModel.load, d / "truncated.npz", "colour model"),
         (IKPriors.load, d / "missing.npz", "IK priors file not found"),
+        (PoseDatabase.load, d / "picture.png", "not a pose database: not a .npz archive"),
+        (PoseDatabase.load, d / "colour_model.npz", "not a pose database: no array tiny, hinges"),
     ]
     for load, path, says in cases:
         with pytest.raises(InputFileError) as err:

@@ -106,5 +106,5 @@ def test_missing_or_foreign_database_files_are_user_errors(tmp_path):
     with pytest.raises(InputFileError, match="build-db"):
         PoseDatabase.load(tmp_path / "nope.npz")
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
-    with pytest.raises(InputFileError, match="missing arrays"):
+    with pytest.raises(InputFileError, match="not a pose database: no array tiny, hinges"):
         PoseDatabase.load(tmp_path / "other.npz")

@@ -77,6 +77,9 @@ class ShirtGeometry:
         """``(T,)`` body index of every face."""
         return np.asarray(self.vertex_body)[np.asarray(self.faces)[:, 0]]
 
+    #: the arrays :meth:`to_arrays` writes, without their prefix
+    ARRAY_NAMES = ("body_names", "vertices_m", "vertex_body", "faces", "face_patch", "patch_colour", "colour_names")
+
     def to_arrays(self, prefix: str = "geometry_") -> dict[str, np.ndarray]:
         """Arrays for ``numpy.savez`` (strings as unicode arrays)."""
         return {

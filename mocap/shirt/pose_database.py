@@ -48,6 +48,7 @@ from scipy.spatial.transform import Rotation
 
 from mocap.atomic_files import atomic_target
 from mocap.errors import InputFileError
+from mocap.npz_files import read_npz
 from mocap.shirt.geometry import ShirtGeometry
 from mocap.shirt.kinematics import UPPER_HINGES
 
@@ -69,6 +70,11 @@ _CACHE_ENCODINGS = 20000  # database entries whose encodings a PoseDatabase keep
 FORMAT_VERSION = 2
 _PCA_DIMS = 96
 _MIN_PIXELS = 25
+
+
+#: the arrays a database file holds (:meth:`PoseDatabase.save`)
+_ARRAYS = ("tiny", "hinges", "view_quat", "box_centre_m", "box_side_m", "mjcf_text", "meta", "pca_mean", "pca_basis", "index_bytes",
+           "hinge_names", *(f"geometry_{n}" for n in ShirtGeometry.ARRAY_NAMES))
 
 
 @dataclass(frozen=True)
@@ -371,35 +377,20 @@ class PoseDatabase:
     @classmethod
     def load(cls, path: str | Path) -> "PoseDatabase":
         path = Path(path)
-        if not path.is_file():
-            raise InputFileError(path, "pose database not found", "build it with `simbench shirt build-db --out FILE`")
+        fix = "build it with `simbench shirt build-db`"
+        z = read_npz(path, _ARRAYS, "pose database", fix)  # a missing, foreign or corrupt file: one InputFileError
+        meta = json.loads(str(z["meta"]))
+        if meta.get("format_version") != FORMAT_VERSION:
+            raise InputFileError(path, f"format_version {meta.get('format_version')!r}, this pipeline reads {FORMAT_VERSION}", fix)
+        names = tuple(str(s) for s in z["hinge_names"])
+        if names != UPPER_HINGES:
+            raise InputFileError(path, f"hinges {names} differ from {UPPER_HINGES}", fix)
+        db = cls(z["tiny"], z["hinges"], z["view_quat"], z["box_centre_m"], z["box_side_m"], ShirtGeometry.from_arrays(z, source=str(path)),
+                 str(z["mjcf_text"]), meta, z["pca_mean"], z["pca_basis"], z["index_bytes"])
         try:
-            return cls._read(path)
-        except InputFileError:
-            raise
-        except (OSError, ValueError, EOFError, KeyError, RuntimeError, zipfile.BadZipFile, zlib.error) as exc:
-            # a truncated or corrupt file fails only when an array is read, with zlib's, zipfile's or faiss's own message
-            raise InputFileError(path, f"not a readable pose database ({type(exc).__name__}: {exc})",
-                                 "rebuild it with `simbench shirt build-db`") from None
-
-    @classmethod
-    def _read(cls, path: Path) -> "PoseDatabase":
-        with np.load(path, allow_pickle=False) as z:
-            files = set(z.files)
-            need = {"tiny", "hinges", "view_quat", "box_centre_m", "box_side_m", "mjcf_text", "meta", "pca_mean", "pca_basis", "index_bytes"}
-            if not need <= files:
-                raise InputFileError(path, f"missing arrays {sorted(need - files)}", "rebuild it with `simbench shirt build-db`")
-            meta = json.loads(str(z["meta"]))
-            if meta.get("format_version") != FORMAT_VERSION:
-                raise InputFileError(path, f"format_version {meta.get('format_version')!r}, this pipeline reads {FORMAT_VERSION}",
-                                     "rebuild it with `simbench shirt build-db`")
-            names = tuple(str(s) for s in z["hinge_names"])
-            if names != UPPER_HINGES:
-                raise InputFileError(path, f"hinges {names} differ from {UPPER_HINGES}", "rebuild it with `simbench shirt build-db`")
-            geometry = ShirtGeometry.from_arrays(z, source=str(path))
-            db = cls(z["tiny"], z["hinges"], z["view_quat"], z["box_centre_m"], z["box_side_m"], geometry,
-                     str(z["mjcf_text"]), meta, z["pca_mean"], z["pca_basis"], z["index_bytes"])
-        db._index = faiss.deserialize_index(db.index_bytes)
+            db._index = faiss.deserialize_index(db.index_bytes)
+        except RuntimeError as exc:  # a damaged index, with faiss's own message
+            raise InputFileError(path, f"not a readable pose database ({exc})", fix) from None
         return db
 
     # ------------------------------------------------------------------ search
